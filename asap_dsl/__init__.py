@@ -1,0 +1,14 @@
+"""asap-dsl: specify control tasks to fulfil as soon as possible, and compile them.
+
+    import asap_dsl
+    prog = asap_dsl.load("specs/dc_motor.asap")
+    prog.system.state_names           # ('theta', 'omega', 'i')
+    prog.task("reach").spec.robustness(traces)
+"""
+
+from .diagnostics import Diagnostic, SpecError
+from .program import Formula, Program, Task, load, loads
+
+__version__ = "0.1.0"
+
+__all__ = ["Diagnostic", "Formula", "Program", "SpecError", "Task", "load", "loads", "__version__"]

@@ -1,0 +1,912 @@
+"""The checker: AST to :class:`~asap_dsl.model.ProgramModel`, reporting every problem at once.
+
+It resolves names (suggesting the closest declared one), tells conditions from numbers, folds
+constants, converts times to steps, checks causality and builds the formula IR. It never stops at
+the first problem: each part is checked on its own and a broken part is left out of the model,
+so that the rest still gets checked. Model-level rules (overlaps, bounds, unused names, ...) are
+lint rules in :mod:`asap_dsl.lint`.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Callable, Optional
+
+import numpy as np
+
+from . import ast
+from .diagnostics import Collector, Span
+from .diagnostics import closest as _closest
+from .expr import BUILTIN_CONSTANTS, FUNCTION_ARITY, Symbols, compile_batched, compile_scalar, evaluate_constant, interval_range
+from .intervals import Interval
+from .model import (ActionVar, FormulaModel, Integrator, ProgramModel, RegionModel, RewardModel, StateVar,
+                    SystemModel, TaskModel)
+from .stl import ir
+
+ALGORITHMS = ("sac", "td3", "ddpg", "ppo", "a2c")
+REWARDS = {"asap": (), "rho": ("window",), "distance": ("lambda_t", "lambda_o", "base")}
+INTEGRATORS = {"rk4": ("substeps",), "euler": ("substeps",), "exact": ()}
+TRAIN_SETTINGS = {
+    "algo": "str", "steps": "int", "seed": "int", "preset": "str", "n_envs": "int",
+    "learning_rate": "float", "batch_size": "int", "buffer_size": "int", "gamma": "float",
+    "tau": "float", "learning_starts": "int", "train_freq": "int", "gradient_steps": "int",
+    "n_steps": "int", "ent_coef": "float", "gae_lambda": "float", "n_epochs": "int",
+    "vf_coef": "float", "max_grad_norm": "float", "eval_episodes": "int",
+}
+OBSERVE_ITEMS = ("state", "time")
+TASK_CLAUSES = ("asap", "avoid", "deadline", "tolerances", "episode", "reward", "r_sat", "observe", "train")
+_FUTURE_TO_PAST = {"always": "historically", "eventually": "once", "until": "since"}
+
+# Kinds of names.
+CONST, STATE, ACTION, LET, REGION, FORMULA, TASK, SYSTEM, BUILTIN = (
+    "constant", "state", "action", "let", "region", "formula", "task", "system", "built-in constant")
+
+
+class _Unresolved(Exception):
+    """A sub-expression had errors (already reported); the enclosing item is left out."""
+
+
+class Checker:
+    def __init__(self, module: ast.Module, source: str, diag: Collector):
+        self.m = module
+        self.source = source
+        self.d = diag
+        self.lines = source.splitlines()
+        self.kinds: dict[str, tuple[str, Span]] = {}
+        self.used: set[str] = set()
+        self.consts: dict[str, float] = {}
+        self.states: list[StateVar] = []
+        self.actions: list[ActionVar] = []
+        self.lets: dict[str, ast.Expr] = {}
+        self.dt: Optional[float] = None
+        self._const_failed: set[str] = set()
+        self.regions: dict[str, RegionModel] = {}
+        self.formulas: dict[str, FormulaModel] = {}
+        self._formula_ir: dict[str, Optional[ir.Formula]] = {}
+        self._formula_stack: list[str] = []
+        self._region_decls = {r.name: r for r in module.regions}
+        self._formula_decls = {f.name: f for f in module.formulas}
+
+    # ------------------------------------------------------------------ helpers
+    def text(self, span: Span) -> str:
+        if span.line < 1 or span.line > len(self.lines):
+            return ""
+        if span.end_line == span.line:
+            return self.lines[span.line - 1][span.column - 1: span.end_column - 1]
+        first = self.lines[span.line - 1][span.column - 1:]
+        middle = self.lines[span.line: span.end_line - 1]
+        last = self.lines[span.end_line - 1][: span.end_column - 1] if span.end_line <= len(self.lines) else ""
+        return " ".join(x.strip() for x in [first, *middle, last])
+
+    def declare(self, name: str, kind: str, span: Span) -> bool:
+        if name in BUILTIN_CONSTANTS:
+            self.d.add("E102", f"'{name}' is a built-in constant and cannot be redeclared", span)
+            return False
+        if name in self.kinds:
+            prev_kind, prev = self.kinds[name]
+            self.d.add("E102", f"'{name}' is already declared as a {prev_kind} at line {prev.line}", span)
+            return False
+        self.kinds[name] = (kind, span)
+        return True
+
+    def unknown(self, name: str, span: Span, wanted: tuple[str, ...]) -> None:
+        candidates = [n for n, (k, _) in self.kinds.items() if k in wanted]
+        if CONST in wanted:
+            candidates += list(BUILTIN_CONSTANTS)
+        suggestion = _closest(name, candidates)
+        what = " or ".join(dict.fromkeys(wanted)) if wanted else "name"
+        msg = f"unknown {what} '{name}'"
+        hint = f"did you mean '{suggestion}'?" if suggestion else None
+        if name in self.kinds:
+            kind = self.kinds[name][0]
+            self.d.add("E103", f"'{name}' is a {kind}, not a {what}", span, hint=_kind_hint(name, kind, wanted))
+            return
+        self.d.add("E101", msg, span, hint)
+
+    # ------------------------------------------------------------------ expressions (numbers)
+    def number(self, e: ast.Expr, allowed: tuple[str, ...], context: str) -> None:
+        """Check that ``e`` is a numeric expression over names of the ``allowed`` kinds."""
+        if isinstance(e, (ast.Number, ast.Infinity)):
+            return
+        if isinstance(e, ast.Name):
+            if e.id in BUILTIN_CONSTANTS:
+                return
+            kind = self.kinds.get(e.id, (None,))[0]
+            if kind in allowed:
+                self.used.add(e.id)
+                if kind == CONST and e.id not in self.consts:
+                    if e.id not in self._const_failed:
+                        self.d.add("E101", f"constant '{e.id}' is used before it is declared", e.span,
+                                   hint="a constant may use the constants declared before it")
+                    raise _Unresolved
+                if kind == LET and e.id not in self.lets:
+                    raise _Unresolved  # reported where the let is declared
+                return
+            if kind is not None and kind in (CONST, STATE, ACTION, LET) and kind not in allowed:
+                self.d.add("E121" if context == "a constant expression" else "E103",
+                           f"{context} cannot read the {kind} '{e.id}'", e.span,
+                           hint=_context_hint(context))
+                raise _Unresolved
+            if kind in (FORMULA, REGION):
+                self.d.add("E116", f"'{e.id}' is a {kind}, not a number", e.span,
+                           hint=f"write `in {e.id}` for the condition of being in the region" if kind == REGION else None)
+                raise _Unresolved
+            self.unknown(e.id, e.span, tuple(k for k in allowed))
+            raise _Unresolved
+        if isinstance(e, ast.Unary):
+            self.number(e.arg, allowed, context)
+            return
+        if isinstance(e, ast.Binary):
+            errors = 0
+            for side in (e.left, e.right):
+                try:
+                    self.number(side, allowed, context)
+                except _Unresolved:
+                    errors += 1
+            if errors:
+                raise _Unresolved
+            return
+        if isinstance(e, ast.Call):
+            if e.func not in FUNCTION_ARITY:
+                sug = _closest(e.func, FUNCTION_ARITY)
+                self.d.add("E118", f"unknown function '{e.func}'", e.func_span,
+                           hint=f"did you mean '{sug}'?" if sug else "the functions are " + ", ".join(FUNCTION_ARITY))
+                raise _Unresolved
+            arity = FUNCTION_ARITY[e.func]
+            if (arity is not None and len(e.args) != arity) or (arity is None and not e.args):
+                want = f"{arity} argument{'s' if arity != 1 else ''}" if arity else "at least one argument"
+                self.d.add("E104", f"{e.func}() takes {want}, given {len(e.args)}", e.span)
+                raise _Unresolved
+            errors = 0
+            for a in e.args:
+                try:
+                    self.number(a, allowed, context)
+                except _Unresolved:
+                    errors += 1
+            if errors:
+                raise _Unresolved
+            return
+        self.d.add("E116", f"a condition cannot be used as a number in {context}", e.span)
+        raise _Unresolved
+
+    def constant(self, e: ast.Expr, what: str) -> float:
+        """Fold a constant expression; report and raise if it reads anything but constants."""
+        self.number(e, (CONST,), "a constant expression")
+        value = evaluate_constant(e, self.consts)
+        if math.isnan(value):
+            self.d.add("E117", f"{what} is not a real number (check divisions, logarithms and roots)", e.span)
+            raise _Unresolved
+        return value
+
+    # ------------------------------------------------------------------ times
+    def steps(self, d: ast.Duration, what: str, allow_inf: bool = False) -> Optional[int]:
+        """Convert a duration to whole steps (None for inf); report problems."""
+        if d.is_inf:
+            if not allow_inf:
+                self.d.add("E117", f"{what} cannot be infinite", d.span)
+                raise _Unresolved
+            return None
+        if d.unit == "steps":
+            if not float(d.value).is_integer():
+                self.d.add("E106", f"{what} {_fmt(d.value)} is not a whole number of steps", d.span,
+                           hint="give a whole number of steps, or seconds with a unit such as 1.5s")
+                raise _Unresolved
+            return int(d.value)
+        seconds = d.value / 1000.0 if d.unit == "ms" else d.value
+        if self.dt is None:
+            self.d.add("E114", f"{what} is given in seconds, but the system has no valid dt to convert it", d.span)
+            raise _Unresolved
+        n = seconds / self.dt
+        if abs(n - round(n)) > 1e-9 * max(1.0, abs(n)):
+            self.d.add("E106", f"{what} {_fmt(d.value)}{d.unit} is {n:.6g} steps of dt = {_fmt(self.dt)}, not a whole number",
+                       d.span, hint=f"use a multiple of {_fmt(self.dt)}s")
+            raise _Unresolved
+        return int(round(n))
+
+    def interval(self, syn: Optional[ast.IntervalSyntax]) -> ir.Interval:
+        if syn is None:
+            return ir.Interval(0, None)
+        errors = 0
+        lo = hi = None
+        try:
+            lo = self.steps(syn.lo, "the interval's lower bound")
+        except _Unresolved:
+            errors += 1
+        try:
+            hi = self.steps(syn.hi, "the interval's upper bound", allow_inf=True)
+        except _Unresolved:
+            errors += 1
+        if errors:
+            raise _Unresolved
+        if hi is not None and lo > hi:
+            self.d.add("E105", f"the interval [{lo}, {hi}] (in steps) has its lower bound above its upper bound", syn.span,
+                       hint=f"write [{hi}, {lo}]")
+            raise _Unresolved
+        return ir.Interval(lo, hi)
+
+    # ------------------------------------------------------------------ conditions (formulas)
+    def condition(self, e: ast.Expr, causal_clause: Optional[str] = None) -> ir.Formula:
+        """Check a condition and build its IR; ``causal_clause`` names the clause that forbids the future."""
+        if isinstance(e, ast.BoolLiteral):
+            return ir.Const(e.value)
+        if isinstance(e, ast.InRegion):
+            return self.region_atom(e)
+        if isinstance(e, ast.Compare):
+            return self.compare_atom(e)
+        if isinstance(e, ast.Name):
+            return self.formula_ref(e, causal_clause)
+        if isinstance(e, ast.Not):
+            return ir.Not(self.condition(e.arg, causal_clause))
+        if isinstance(e, ast.Logic):
+            left = right = None
+            errors = 0
+            try:
+                left = self.condition(e.left, causal_clause)
+            except _Unresolved:
+                errors += 1
+            try:
+                right = self.condition(e.right, causal_clause)
+            except _Unresolved:
+                errors += 1
+            if errors:
+                raise _Unresolved
+            return {"and": ir.And, "or": ir.Or, "implies": ir.Implies}[e.op](left, right)
+        if isinstance(e, (ast.Temporal, ast.Temporal2)):
+            errors = 0
+            if causal_clause and e.op in _FUTURE_TO_PAST:
+                self.d.add("E107", f"'{causal_clause}' must be causal, but '{e.op}' looks into the future", e.op_span,
+                           hint=f"an agent cannot see the future: use the past form '{_FUTURE_TO_PAST[e.op]}'")
+                errors += 1
+            interval = None
+            try:
+                interval = self.interval(e.interval)
+            except _Unresolved:
+                errors += 1
+            args = (e.arg,) if isinstance(e, ast.Temporal) else (e.left, e.right)
+            built = []
+            for a in args:
+                try:
+                    built.append(self.condition(a, causal_clause))
+                except _Unresolved:
+                    errors += 1
+            if errors:
+                raise _Unresolved
+            cls = {"always": ir.Always, "eventually": ir.Eventually, "historically": ir.Historically,
+                   "once": ir.Once, "until": ir.Until, "since": ir.Since}[e.op]
+            return cls(interval, *built)
+        # A number where a condition is expected.
+        self.d.add("E116", "a number cannot be used as a condition", e.span,
+                   hint="compare it, for example `x > 0`")
+        raise _Unresolved
+
+    def region_atom(self, e: ast.InRegion) -> ir.Formula:
+        if e.region not in self.regions:
+            if e.region in self._region_decls:
+                raise _Unresolved  # the region itself has errors, reported there
+            self.unknown(e.region, e.name_span, (REGION,))
+            raise _Unresolved
+        self.used.add(e.region)
+        region = self.regions[e.region]
+        return ir.Atom(f"in {e.region}", region.robustness, region.satisfied, self.region_bounds(region))
+
+    def compare_atom(self, e: ast.Compare) -> ir.Formula:
+        if e.op in ("==", "!="):
+            self.d.add("E115", f"'{e.op}' between real signals cannot be measured by robustness", e.op_span,
+                       hint="write `abs(a - b) <= eps`" if e.op == "==" else "write `abs(a - b) > eps`")
+            raise _Unresolved
+        errors = 0
+        for side in (e.left, e.right):
+            try:
+                self.number(side, (CONST, STATE, LET), "a formula")
+            except _Unresolved:
+                errors += 1
+        if errors:
+            raise _Unresolved
+        # rho of `a < b` is b - a; of `a > b` is a - b.
+        margin = ast.Binary("-", e.right, e.left, e.span) if e.op in ("<", "<=") else ast.Binary("-", e.left, e.right, e.span)
+        symbols = self.symbols()
+        rho = compile_scalar(margin, symbols)
+        left, right = compile_scalar(e.left, symbols), compile_scalar(e.right, symbols)
+        op = {"<": np.less, "<=": np.less_equal, ">": np.greater, ">=": np.greater_equal}[e.op]
+
+        def satisfied(states, _l=left, _r=right, _op=op):
+            return _op(_l(states), _r(states))
+
+        bounds = interval_range(margin, symbols, self.state_box())
+        return ir.Atom(self.text(e.span), rho, satisfied, (bounds.lo, bounds.hi))
+
+    def formula_ref(self, e: ast.Name, causal_clause: Optional[str]) -> ir.Formula:
+        kind = self.kinds.get(e.id, (None,))[0]
+        if kind != FORMULA:
+            if kind in (STATE, LET, CONST, ACTION):
+                self.d.add("E116", f"'{e.id}' is a {kind}, a number, not a condition", e.span,
+                           hint=f"compare it, for example `{e.id} > 0`")
+            elif kind == REGION:
+                self.d.add("E116", f"'{e.id}' is a region, not a condition", e.span, hint=f"write `in {e.id}`")
+            else:
+                self.unknown(e.id, e.span, (FORMULA,))
+            raise _Unresolved
+        self.used.add(e.id)
+        node = self.formula_ir(e.id)
+        if node is None:
+            raise _Unresolved
+        if causal_clause and not ir.is_causal(node):
+            self.d.add("E107", f"'{causal_clause}' must be causal, but formula '{e.id}' uses a future operator", e.span,
+                       hint="an agent cannot see the future: use past operators (historically, once, since)")
+            raise _Unresolved
+        return node
+
+    def formula_ir(self, name: str) -> Optional[ir.Formula]:
+        if name in self._formula_ir:
+            return self._formula_ir[name]
+        decl = self._formula_decls[name]
+        if name in self._formula_stack:
+            self.d.add("E120", f"formula '{name}' is defined in terms of itself", decl.name_span)
+            self._formula_ir[name] = None
+            return None
+        self._formula_stack.append(name)
+        try:
+            node = self.condition(decl.body)
+        except _Unresolved:
+            node = None
+        finally:
+            self._formula_stack.pop()
+        if name not in self._formula_ir:
+            self._formula_ir[name] = node
+        return self._formula_ir[name]
+
+    # ------------------------------------------------------------------ system
+    def symbols(self) -> Symbols:
+        return Symbols(dict(self.consts), {s.name: s.index for s in self.states},
+                       {a.name: a.index for a in self.actions}, dict(self.lets))
+
+    def state_box(self) -> list[tuple[float, float]]:
+        return [(s.low, s.high) for s in self.states]
+
+    def region_bounds(self, region: RegionModel) -> tuple[float, float]:
+        symbols = self.symbols()
+        coords = [interval_range(ast.Name(c, Span()), symbols, self.state_box()) for c in region.coords]
+        if region.kind == "ball":
+            dist = Interval(0.0, 0.0)
+            for iv, c in zip(coords, region.centre):
+                dist = dist + (iv - c) ** 2
+            lo, hi = math.sqrt(max(dist.lo, 0.0)), math.sqrt(dist.hi) if math.isfinite(dist.hi) else math.inf
+            return (region.radius - hi, region.radius - lo)
+        lows, highs = [], []
+        for iv, a, b in zip(coords, region.low, region.high):
+            side = Interval(min(iv.lo - a, b - iv.hi), min(iv.hi - a, b - iv.lo))
+            lows.append(side.lo)
+            highs.append(side.hi)
+        return (min(lows), min(highs))
+
+    def range_(self, r: ast.Range, what: str) -> tuple[float, float]:
+        values = []
+        errors = 0
+        for e in (r.lo, r.hi):
+            try:
+                values.append(self.constant(e, what))
+            except _Unresolved:
+                errors += 1
+        if errors:
+            raise _Unresolved
+        lo, hi = values
+        if lo > hi:
+            self.d.add("E105", f"{what} [{_fmt(lo)}, {_fmt(hi)}] has its lower bound above its upper bound", r.span,
+                       hint=f"write [{_fmt(hi)}, {_fmt(lo)}]")
+            raise _Unresolved
+        return lo, hi
+
+    def check_system(self) -> Optional[SystemModel]:
+        if not self.m.systems:
+            self.d.add("E114", "the file declares no system", Span(1, 1, 1, 2),
+                       hint="a spec starts with `system NAME { state ..., action ..., dt = ..., ode { ... } }`")
+            return None
+        for extra in self.m.systems[1:]:
+            self.d.add("E119", f"a file holds one system; '{extra.name}' is a second one", extra.name_span)
+        sys = self.m.systems[0]
+        self.declare(sys.name, SYSTEM, sys.name_span)
+        # Declare every name first so that uses can say what a name is even out of order.
+        for c in sys.consts:
+            self.declare(c.name, CONST, c.name_span)
+        for s in sys.states:
+            self.declare(s.name, STATE, s.name_span)
+        for a in sys.actions:
+            self.declare(a.name, ACTION, a.name_span)
+        for lt in sys.lets:
+            self.declare(lt.name, LET, lt.name_span)
+
+        for c in sys.consts:  # in order: a constant may use earlier ones
+            if self.kinds.get(c.name, (None, None))[1] != c.name_span:
+                continue
+            try:
+                self.consts[c.name] = self.constant(c.value, f"constant '{c.name}'")
+            except _Unresolved:
+                self._const_failed.add(c.name)
+
+        dt_ok = True
+        if not sys.dt:
+            self.d.add("E114", f"system '{sys.name}' has no `dt = ...` (seconds per step)", sys.name_span)
+            dt_ok = False
+        for extra in sys.dt[1:]:
+            self.d.add("E119", "dt is given more than once", extra.span)
+        if sys.dt:
+            try:
+                dt = self.constant(sys.dt[0], "dt")
+                if not dt > 0 or not math.isfinite(dt):
+                    self.d.add("E117", f"dt must be a positive number of seconds, not {_fmt(dt)}", sys.dt[0].span)
+                else:
+                    self.dt = dt
+            except _Unresolved:
+                dt_ok = False
+        del dt_ok
+
+        for s in sys.states:
+            if self.kinds.get(s.name, (None, None))[1] != s.name_span:
+                continue
+            try:
+                lo, hi = self.range_(s.space, f"the state space of '{s.name}'")
+                if not lo < hi:
+                    self.d.add("E117", f"the state space of '{s.name}' is empty or a single point", s.space.span)
+                    raise _Unresolved
+                ilo, ihi = (lo, hi) if s.init is None else self.range_(s.init, f"the init range of '{s.name}'")
+            except _Unresolved:
+                lo, hi, ilo, ihi = -math.inf, math.inf, 0.0, 0.0
+            self.states.append(StateVar(s.name, len(self.states), lo, hi, ilo, ihi, s.span, s.init.span if s.init else None))
+        if not sys.states:
+            self.d.add("E114", f"system '{sys.name}' declares no state", sys.name_span)
+
+        for a in sys.actions:
+            if self.kinds.get(a.name, (None, None))[1] != a.name_span:
+                continue
+            try:
+                lo, hi = self.range_(a.bounds, f"the bounds of action '{a.name}'")
+                if not (math.isfinite(lo) and math.isfinite(hi)):
+                    self.d.add("E117", f"the bounds of action '{a.name}' must be finite", a.bounds.span)
+            except _Unresolved:
+                lo, hi = -1.0, 1.0
+            self.actions.append(ActionVar(a.name, len(self.actions), lo, hi, a.span))
+
+        # Lets: over states, constants and other lets (any order, no cycles).
+        let_decls = {lt.name: lt for lt in sys.lets if self.kinds.get(lt.name, (None, None))[1] == lt.name_span}
+        order = self._let_order(let_decls)
+        for name in order:
+            lt = let_decls[name]
+            try:
+                self.number(lt.value, (CONST, STATE, LET), f"let '{name}'")
+                self.lets[name] = lt.value
+            except _Unresolved:
+                pass
+
+        kind, equations, simulator, dyn_span = self.check_dynamics(sys)
+        integrator = self.check_integrator(sys, kind)
+        if self.dt is None or kind is None:
+            return None
+        return SystemModel(sys.name, tuple(self.states), tuple(self.actions), dict(self.consts), dict(self.lets),
+                           self.dt, kind, equations, simulator, integrator, sys.span, dyn_span)
+
+    def _let_order(self, decls: dict[str, ast.LetDecl]) -> list[str]:
+        order: list[str] = []
+        state: dict[str, int] = {}
+
+        def visit(name: str) -> bool:
+            if state.get(name) == 2:
+                return True
+            if state.get(name) == 1:
+                self.d.add("E120", f"let '{name}' is defined in terms of itself", decls[name].name_span)
+                return False
+            state[name] = 1
+            ok = True
+            for n in _names(decls[name].value):
+                if n.id in decls and not visit(n.id):
+                    ok = False
+            state[name] = 2
+            if ok:
+                order.append(name)
+            return ok
+
+        for name in decls:
+            visit(name)
+        return order
+
+    def check_dynamics(self, sys: ast.System):
+        if not sys.dynamics:
+            self.d.add("E114", f"system '{sys.name}' has no dynamics: add `ode {{ ... }}`, `map {{ ... }}` or `simulator \"...\"`",
+                       sys.name_span)
+            return None, (), None, sys.span
+        for extra in sys.dynamics[1:]:
+            self.d.add("E119", "a system has exactly one dynamics (ode, map or simulator); this is a second one", extra.span)
+        dyn = sys.dynamics[0]
+        if isinstance(dyn, ast.SimulatorDecl):
+            target = dyn.target.strip()
+            if not target or (":" in target and (not target.split(":", 1)[0] or not target.split(":", 1)[1])):
+                self.d.add("E117", f"simulator \"{dyn.target}\" is not a registered name or \"package.module:factory\"", dyn.span)
+                return None, (), None, dyn.span
+            return "simulator", (), target, dyn.span
+        state_names = [s.name for s in self.states]
+        given: dict[str, ast.Equation] = {}
+        errors = 0
+        prime = "'" if dyn.kind == "ode" else ""
+        for eq in dyn.equations:
+            if eq.target not in state_names:
+                kind = self.kinds.get(eq.target, (None,))[0]
+                if kind is None:
+                    sug = _closest(eq.target, state_names)
+                    self.d.add("E101", f"unknown state '{eq.target}' in {dyn.kind}", eq.target_span,
+                               hint=f"did you mean '{sug}'?" if sug else None)
+                else:
+                    self.d.add("E110", f"'{eq.target}' is a {kind}; {dyn.kind} equations are for states", eq.target_span)
+                errors += 1
+                continue
+            if eq.target in given:
+                self.d.add("E110", f"state '{eq.target}' has a second equation (the first is at line {given[eq.target].span.line})",
+                           eq.target_span)
+                errors += 1
+                continue
+            given[eq.target] = eq
+            try:
+                self.number(eq.value, (CONST, STATE, ACTION, LET), f"the {dyn.kind} equation of '{eq.target}'")
+            except _Unresolved:
+                errors += 1
+        for s in state_names:
+            if s not in given:
+                self.d.add("E109", f"state '{s}' has no equation in {dyn.kind}", dyn.span,
+                           hint=f"add `{s}{prime} = ...`")
+                errors += 1
+        if errors:
+            return None, (), None, dyn.span
+        return dyn.kind, tuple(given[s].value for s in state_names), None, dyn.span
+
+    def check_integrator(self, sys: ast.System, kind: Optional[str]) -> Integrator:
+        if not sys.integrators:
+            return Integrator()
+        for extra in sys.integrators[1:]:
+            self.d.add("E119", "the integrator is given more than once", extra.span)
+        decl = sys.integrators[0]
+        if kind in ("map", "simulator"):
+            self.d.add("E119", f"an integrator applies to `ode` dynamics only, not to a {kind}", decl.span)
+            return Integrator(span=decl.span)
+        if decl.method not in INTEGRATORS:
+            sug = _closest(decl.method, INTEGRATORS)
+            self.d.add("E117", f"unknown integrator '{decl.method}'", decl.method_span,
+                       hint=f"did you mean '{sug}'?" if sug else "choose rk4, euler or exact")
+            return Integrator(span=decl.span)
+        substeps = 4 if decl.method == "rk4" else 1
+        for s in decl.settings:
+            if s.name not in INTEGRATORS[decl.method]:
+                self.d.add("E117", f"integrator {decl.method} has no setting '{s.name}'", s.name_span,
+                           hint=f"it takes {', '.join(INTEGRATORS[decl.method]) or 'no settings'}")
+                continue
+            try:
+                v = self.constant(s.value, "substeps")
+            except _Unresolved:
+                continue
+            if not float(v).is_integer() or v < 1:
+                self.d.add("E117", "substeps must be a whole number of at least 1", s.span)
+                continue
+            substeps = int(v)
+        return Integrator(decl.method, substeps if decl.method != "exact" else 1, decl.span)
+
+    # ------------------------------------------------------------------ regions
+    def check_regions(self) -> None:
+        for r in self.m.regions:
+            self.declare(r.name, REGION, r.name_span)
+        for f in self.m.formulas:
+            self.declare(f.name, FORMULA, f.name_span)
+        for t in self.m.tasks:
+            self.declare(t.name, TASK, t.name_span)
+        state_names = [s.name for s in self.states]
+        symbols = self.symbols()
+        for r in self.m.regions:
+            if self.kinds.get(r.name, (None, None))[1] != r.name_span:
+                continue
+            try:
+                model = self.region(r, state_names)
+            except _Unresolved:
+                continue
+            values = compile_batched([ast.Name(c, Span()) for c in model.coords], symbols)
+            self.regions[r.name] = RegionModel(model.name, model.kind, model.coords, model.centre, model.radius,
+                                               model.low, model.high, r.span, values)
+
+    def coordinate(self, name: str, span: Span) -> None:
+        kind = self.kinds.get(name, (None,))[0]
+        if kind in (STATE, LET):
+            if kind == LET and name not in self.lets:
+                raise _Unresolved
+            self.used.add(name)
+            return
+        if kind is None:
+            self.unknown(name, span, (STATE, LET))
+        else:
+            self.d.add("E103", f"'{name}' is a {kind}; a region is over states and lets", span)
+        raise _Unresolved
+
+    def region(self, r: ast.RegionDecl, state_names: list[str]) -> RegionModel:
+        shape = r.shape
+        errors = 0
+        if isinstance(shape, ast.Ball):
+            coords: list[str] = []
+            centre: list[float] = []
+            if shape.named:
+                for c in shape.centre:
+                    if c.name in coords:
+                        self.d.add("E102", f"'{c.name}' appears twice in the centre of region '{r.name}'", c.span)
+                        errors += 1
+                        continue
+                    try:
+                        self.coordinate(c.name, c.span)
+                        coords.append(c.name)
+                        centre.append(self.constant(c.value, "a ball centre"))
+                    except _Unresolved:
+                        errors += 1
+                if not shape.centre:
+                    self.d.add("E104", f"the centre of region '{r.name}' names no variable", shape.centre_span)
+                    errors += 1
+            else:
+                if len(shape.centre) != len(state_names):
+                    self.d.add("E104", f"the centre of region '{r.name}' has {len(shape.centre)} entries, but the system has "
+                               f"{len(state_names)} states ({', '.join(state_names)})", shape.centre_span,
+                               hint="give one entry per state in declaration order, or name them: ball({x: 1, y: 2}, r)")
+                    errors += 1
+                for c in shape.centre:
+                    try:
+                        centre.append(self.constant(c, "a ball centre"))
+                    except _Unresolved:
+                        errors += 1
+                coords = list(state_names)
+            try:
+                radius = self.constant(shape.radius, "a ball radius")
+                if not radius > 0:
+                    self.d.add("E117", f"the radius of region '{r.name}' must be positive, not {_fmt(radius)}", shape.radius.span)
+                    errors += 1
+            except _Unresolved:
+                errors += 1
+                radius = 0.0
+            if errors:
+                raise _Unresolved
+            return RegionModel(r.name, "ball", tuple(coords), tuple(centre), radius)
+        coords, lows, highs = [], [], []
+        if not shape.sides:
+            self.d.add("E104", f"box '{r.name}' bounds no variable", shape.span)
+            raise _Unresolved
+        for side in shape.sides:
+            if side.var in coords:
+                self.d.add("E102", f"'{side.var}' is bounded twice in box '{r.name}'", side.span)
+                errors += 1
+                continue
+            try:
+                self.coordinate(side.var, side.span)
+                lo, hi = self.range_(side.bounds, f"the side '{side.var}' of box '{r.name}'")
+                coords.append(side.var)
+                lows.append(lo)
+                highs.append(hi)
+            except _Unresolved:
+                errors += 1
+        if errors:
+            raise _Unresolved
+        return RegionModel(r.name, "box", tuple(coords), low=tuple(lows), high=tuple(highs))
+
+    # ------------------------------------------------------------------ formulas and tasks
+    def check_formulas(self) -> None:
+        for f in self.m.formulas:
+            if self.kinds.get(f.name, (None, None))[1] != f.name_span:
+                continue
+            node = self.formula_ir(f.name)
+            if node is not None:
+                self.formulas[f.name] = FormulaModel(f.name, node, f.span)
+
+    def check_task(self, t: ast.TaskDecl) -> Optional[TaskModel]:
+        clauses: dict[str, ast.Clause] = {}
+        for c in t.clauses:
+            if c.keyword in clauses:
+                self.d.add("E119", f"task '{t.name}' gives `{c.keyword}` twice (first at line {clauses[c.keyword].span.line})", c.span)
+                continue
+            clauses[c.keyword] = c
+        errors = 0
+        for required in ("asap", "deadline"):
+            if required not in clauses:
+                self.d.add("E114", f"task '{t.name}' has no `{required}` clause", t.name_span,
+                           hint="`asap FORMULA` says what to fulfil as soon as possible" if required == "asap"
+                           else "`deadline N` gives the longest episode in steps (or seconds, `3s`)")
+                errors += 1
+
+        def attempt(fn: Callable, *args, default=None):
+            nonlocal errors
+            try:
+                return fn(*args)
+            except _Unresolved:
+                errors += 1
+                return default
+
+        asap = attempt(self.condition, clauses["asap"].value, "asap") if "asap" in clauses else None
+        avoid = attempt(self.condition, clauses["avoid"].value, "avoid") if "avoid" in clauses else None
+        deadline = attempt(self.positive_steps, clauses["deadline"].value, "the deadline") if "deadline" in clauses else None
+        tolerances: tuple[int, ...] = (deadline,) if deadline else ()
+        if "tolerances" in clauses:
+            tolerances = tuple(attempt(self.positive_steps, d, "a tolerance", default=0) for d in clauses["tolerances"].value)
+        episode = (deadline, deadline) if deadline else (1, 1)
+        if "episode" in clauses:
+            lo_d, hi_d = clauses["episode"].value
+            lo = attempt(self.positive_steps, lo_d, "the shortest episode", default=1)
+            hi = attempt(self.positive_steps, hi_d, "the longest episode", default=1)
+            if lo and hi and lo > hi:
+                self.d.add("E105", f"the episode range {lo}..{hi} has its lower bound above its upper bound", clauses["episode"].span)
+                errors += 1
+            episode = (lo or 1, hi or 1)
+        reward = attempt(self.reward, clauses["reward"].value, asap, avoid) if "reward" in clauses else RewardModel()
+        r_sat = None
+        if "r_sat" in clauses:
+            value = clauses["r_sat"].value
+            if not (isinstance(value, ast.Name) and value.id == "auto"):
+                r_sat = attempt(self.constant, value, "r_sat")
+        observe = ("state",)
+        if "observe" in clauses:
+            observe = attempt(self.observe, clauses["observe"].value, default=("state",))
+        train = attempt(self.train, clauses["train"].value, default={}) if "train" in clauses else {}
+        if errors or asap is None or deadline is None:
+            return None
+        return TaskModel(
+            t.name, asap, avoid, deadline, tolerances, episode, reward or RewardModel(), r_sat, observe, train, t.span,
+            {k: c.span for k, c in clauses.items()},
+            _regions_of(clauses["asap"].value), _regions_of(clauses["avoid"].value) if "avoid" in clauses else (),
+        )
+
+    def positive_steps(self, d: ast.Duration, what: str) -> int:
+        n = self.steps(d, what)
+        if n is None or n < 1:
+            self.d.add("E117", f"{what} must be at least one step", d.span)
+            raise _Unresolved
+        return n
+
+    def reward(self, syn: ast.RewardSyntax, asap, avoid) -> RewardModel:
+        if syn.kind not in REWARDS:
+            sug = _closest(syn.kind, REWARDS)
+            self.d.add("E117", f"unknown reward '{syn.kind}'", syn.span,
+                       hint=f"did you mean '{sug}'?" if sug else "choose asap, rho, rho(window = D) or distance(...)")
+            raise _Unresolved
+        params: dict[str, float] = {}
+        for s in syn.settings:
+            if s.name not in REWARDS[syn.kind]:
+                self.d.add("E117", f"reward {syn.kind} has no setting '{s.name}'", s.name_span,
+                           hint=f"it takes {', '.join(REWARDS[syn.kind]) or 'no settings'}")
+                raise _Unresolved
+            if s.name == "window":
+                if isinstance(s.value, ast.Number):
+                    params["window"] = self.positive_steps(ast.Duration(s.value.value, "steps", s.value.span), "the reward window")
+                else:
+                    params["window"] = self.constant(s.value, "the reward window")
+                    if not float(params["window"]).is_integer() or params["window"] < 1:
+                        self.d.add("E117", "the reward window must be a whole number of steps, at least 1", s.span)
+                        raise _Unresolved
+                    params["window"] = int(params["window"])
+            else:
+                params[s.name] = self.constant(s.value, f"the reward setting {s.name}")
+        if syn.kind == "distance":
+            defaults = {"lambda_t": 1.0, "lambda_o": 1.0, "base": 0.0}
+            params = {**defaults, **params}
+        return RewardModel(syn.kind, params, syn.span)
+
+    def observe(self, items) -> tuple[str, ...]:
+        names = []
+        for name, span in items:
+            if name not in OBSERVE_ITEMS:
+                sug = _closest(name, OBSERVE_ITEMS)
+                self.d.add("E117", f"cannot observe '{name}'", span, hint=f"did you mean '{sug}'?" if sug else "observe state or state, time")
+                raise _Unresolved
+            if name in names:
+                self.d.add("E117", f"'{name}' is observed twice", span)
+                raise _Unresolved
+            names.append(name)
+        if names[0] != "state":
+            self.d.add("E117", "the observation starts with the state: write `observe state, time`", items[0][1])
+            raise _Unresolved
+        return tuple(names)
+
+    def train(self, settings) -> dict:
+        out: dict = {}
+        errors = 0
+        for s in settings:
+            if s.name not in TRAIN_SETTINGS:
+                sug = _closest(s.name, TRAIN_SETTINGS)
+                self.d.add("E117", f"unknown training setting '{s.name}'", s.name_span,
+                           hint=f"did you mean '{sug}'?" if sug else "settings: " + ", ".join(TRAIN_SETTINGS))
+                errors += 1
+                continue
+            kind = TRAIN_SETTINGS[s.name]
+            value = s.value
+            if kind == "str":
+                text = value[1:-1] if isinstance(value, str) else (value.id if isinstance(value, ast.Name) else None)
+                if text is None:
+                    self.d.add("E117", f"'{s.name}' takes a name, such as `{s.name} = sac`", s.span)
+                    errors += 1
+                    continue
+                if s.name == "algo" and text not in ALGORITHMS:
+                    sug = _closest(text, ALGORITHMS)
+                    self.d.add("E117", f"unknown algorithm '{text}'", s.span,
+                               hint=f"did you mean '{sug}'?" if sug else "choose " + ", ".join(ALGORITHMS))
+                    errors += 1
+                    continue
+                out[s.name] = text
+                continue
+            if isinstance(value, str):
+                self.d.add("E117", f"'{s.name}' takes a number, not a string", s.span)
+                errors += 1
+                continue
+            try:
+                number = self.constant(value, f"the training setting {s.name}")
+            except _Unresolved:
+                errors += 1
+                continue
+            if kind == "int":
+                if not float(number).is_integer() or number < 0:
+                    self.d.add("E117", f"'{s.name}' must be a whole number, not {_fmt(number)}", s.span)
+                    errors += 1
+                    continue
+                number = int(number)
+            out[s.name] = number
+        if errors:
+            raise _Unresolved
+        return out
+
+    # ------------------------------------------------------------------ all
+    def run(self) -> Optional[ProgramModel]:
+        system = self.check_system()
+        self.check_regions()
+        self.check_formulas()
+        tasks: dict[str, TaskModel] = {}
+        for t in self.m.tasks:
+            if self.kinds.get(t.name, (None, None))[1] != t.name_span:
+                continue
+            model = self.check_task(t)
+            if model is not None:
+                tasks[t.name] = model
+        if self.d.has_errors or system is None:
+            return None
+        return ProgramModel(self.m.file, self.source, system, dict(self.regions), dict(self.formulas), tasks,
+                            frozenset(self.used), dict(self.kinds))
+
+
+def _names(e: ast.Expr):
+    from .expr import names_in
+    return names_in(e)
+
+
+def _regions_of(e: ast.Expr) -> tuple[str, ...]:
+    """Regions named by `in R` atoms anywhere in a condition."""
+    found: list[str] = []
+
+    def walk(x):
+        if isinstance(x, ast.InRegion):
+            found.append(x.region)
+        for child in (getattr(x, "arg", None), getattr(x, "left", None), getattr(x, "right", None)):
+            if child is not None and not isinstance(child, str):
+                walk(child)
+
+    walk(e)
+    return tuple(dict.fromkeys(found))
+
+
+def _fmt(x: float) -> str:
+    return f"{x:.6g}"
+
+
+def _kind_hint(name: str, kind: str, wanted: tuple[str, ...]) -> Optional[str]:
+    if kind == REGION:
+        return f"write `in {name}` for the condition of being in the region"
+    if kind == FORMULA and REGION in wanted:
+        return "`in` takes a region; use the formula's name on its own"
+    return None
+
+
+def _context_hint(context: str) -> Optional[str]:
+    if context == "a constant expression":
+        return "bounds, dt, centres, radii and settings must be constants"
+    if context.startswith("let"):
+        return "a let is a signal over states: it cannot read actions"
+    if context == "a formula":
+        return "formulas are over the trace of states; actions are not part of it"
+    return None
+
+
+def check(module: ast.Module, source: str, diag: Collector) -> Optional[ProgramModel]:
+    """Check a parsed module; diagnostics go to ``diag``; the model is None if there are errors."""
+    return Checker(module, source, diag).run()

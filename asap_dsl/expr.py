@@ -1,0 +1,279 @@
+"""Expressions compiled once into vectorised callables, for three backends.
+
+One code generator turns checked expression ASTs into a Python function; the backend decides
+what the function computes with:
+
+* ``numpy``    — batched evaluation, each variable an array over the batch;
+* ``casadi``   — symbolic expressions for the optimal-control oracle;
+* ``interval`` — sound range enclosures over a box (:mod:`asap_dsl.intervals`).
+
+The generated function takes ``(S, A)``: indexable sequences of the state and action components
+(``S[i]``), evaluates the ``let`` definitions it needs once, and returns a tuple of results.
+Constants are folded to numbers at compile time. Nothing is parsed or interpreted per call.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from types import SimpleNamespace
+from typing import Callable, Iterable, Mapping, Optional, Sequence
+
+import numpy as np
+
+from . import ast, intervals
+
+#: The functions of the language and how many arguments each takes (None: one or more).
+FUNCTION_ARITY: dict[str, Optional[int]] = {
+    "sin": 1, "cos": 1, "tan": 1, "asin": 1, "acos": 1, "atan": 1, "atan2": 2,
+    "sinh": 1, "cosh": 1, "tanh": 1, "exp": 1, "log": 1, "sqrt": 1, "abs": 1,
+    "min": None, "max": None, "norm": None,
+}
+
+BUILTIN_CONSTANTS = {"pi": math.pi, "e": math.e}
+
+
+def _np_min(*xs):
+    out = xs[0]
+    for x in xs[1:]:
+        out = np.minimum(out, x)
+    return out
+
+
+def _np_max(*xs):
+    out = xs[0]
+    for x in xs[1:]:
+        out = np.maximum(out, x)
+    return out
+
+
+def _np_norm(*xs):
+    return np.sqrt(sum(np.square(x) for x in xs))
+
+
+NUMPY = SimpleNamespace(
+    sin=np.sin, cos=np.cos, tan=np.tan, asin=np.arcsin, acos=np.arccos, atan=np.arctan,
+    atan2=np.arctan2, sinh=np.sinh, cosh=np.cosh, tanh=np.tanh, exp=np.exp, log=np.log,
+    sqrt=np.sqrt, abs=np.abs, min=_np_min, max=_np_max, norm=_np_norm, pow=np.power,
+)
+
+INTERVAL = SimpleNamespace(**intervals.FUNCTIONS, pow=lambda a, b: intervals.Interval.of(a) ** b)
+
+
+def casadi_namespace() -> SimpleNamespace:
+    import casadi as ca  # imported only when the oracle asks for it
+
+    def cmin(*xs):
+        out = xs[0]
+        for x in xs[1:]:
+            out = ca.fmin(out, x)
+        return out
+
+    def cmax(*xs):
+        out = xs[0]
+        for x in xs[1:]:
+            out = ca.fmax(out, x)
+        return out
+
+    return SimpleNamespace(
+        sin=ca.sin, cos=ca.cos, tan=ca.tan, asin=ca.asin, acos=ca.acos, atan=ca.atan,
+        atan2=ca.atan2, sinh=ca.sinh, cosh=ca.cosh, tanh=ca.tanh, exp=ca.exp, log=ca.log,
+        sqrt=ca.sqrt, abs=ca.fabs, min=cmin, max=cmax,
+        norm=lambda *xs: ca.sqrt(sum(x * x for x in xs)), pow=lambda a, b: a ** b,
+    )
+
+
+@dataclass(frozen=True)
+class Symbols:
+    """What each name of an expression means.
+
+    ``consts`` are folded; ``states``/``actions`` map names to component indices; ``lets`` map
+    names to their (checked) defining expressions, evaluated in the order given.
+    """
+
+    consts: Mapping[str, float]
+    states: Mapping[str, int]
+    actions: Mapping[str, int]
+    lets: Mapping[str, ast.Expr]
+
+
+class _Gen:
+    def __init__(self, symbols: Symbols):
+        self.sym = symbols
+        self.lets_needed: list[str] = []
+
+    def expr(self, e: ast.Expr) -> str:
+        if isinstance(e, ast.Number):
+            return repr(float(e.value))
+        if isinstance(e, ast.Infinity):
+            return "_INF"
+        if isinstance(e, ast.Name):
+            return self.name(e.id)
+        if isinstance(e, ast.Unary):
+            return f"(-{self.expr(e.arg)})"
+        if isinstance(e, ast.Binary):
+            left, right = self.expr(e.left), self.expr(e.right)
+            if e.op == "^":
+                return f"_F.pow({left}, {right})"
+            return f"({left} {e.op} {right})"
+        if isinstance(e, ast.Call):
+            args = ", ".join(self.expr(a) for a in e.args)
+            return f"_F.{e.func}({args})"
+        raise TypeError(f"not an arithmetic expression: {type(e).__name__}")
+
+    def name(self, n: str) -> str:
+        if n in self.sym.consts:
+            return repr(float(self.sym.consts[n]))
+        if n in BUILTIN_CONSTANTS:
+            return repr(BUILTIN_CONSTANTS[n])
+        if n in self.sym.states:
+            return f"S[{self.sym.states[n]}]"
+        if n in self.sym.actions:
+            return f"A[{self.sym.actions[n]}]"
+        if n in self.sym.lets:
+            if n not in self.lets_needed:
+                # dependencies first: generating the body registers the lets it reads
+                self.expr(self.sym.lets[n])
+                if n not in self.lets_needed:
+                    self.lets_needed.append(n)
+            return f"_let_{n}"
+        raise KeyError(n)
+
+
+def compile_function(exprs: Sequence[ast.Expr], symbols: Symbols, backend: SimpleNamespace = NUMPY) -> Callable:
+    """Compile ``exprs`` to ``f(S, A) -> tuple`` for ``backend`` (numpy, casadi or interval)."""
+    gen = _Gen(symbols)
+    bodies = [gen.expr(e) for e in exprs]
+    # Let bodies reference other lets through their local names, generated in dependency order.
+    lines = ["def _compiled(S, A):"]
+    let_gen = _Gen(symbols)
+    for n in gen.lets_needed:
+        lines.append(f"    _let_{n} = {let_gen.expr(symbols.lets[n])}")
+    lines.append(f"    return ({', '.join(bodies)}{',' if len(bodies) == 1 else ''})")
+    source = "\n".join(lines)
+    namespace = {"_F": backend, "_INF": math.inf}
+    exec(compile(source, "<asap expression>", "exec"), namespace)  # noqa: S102 - our own generated code
+    fn = namespace["_compiled"]
+    fn.source = source  # type: ignore[attr-defined]
+    return fn
+
+
+def compile_batched(exprs: Sequence[ast.Expr], symbols: Symbols) -> Callable[[np.ndarray, Optional[np.ndarray]], np.ndarray]:
+    """``f(states [..., n], actions [..., m] or None) -> [..., len(exprs)]`` with numpy."""
+    fn = compile_function(exprs, symbols, NUMPY)
+    k = len(exprs)
+
+    def batched(states: np.ndarray, actions: Optional[np.ndarray] = None) -> np.ndarray:
+        S = np.moveaxis(states, -1, 0)
+        A = np.moveaxis(actions, -1, 0) if actions is not None else ()
+        out = fn(S, A)
+        shape = states.shape[:-1]
+        return np.stack([np.broadcast_to(np.asarray(o, dtype=float), shape) for o in out], axis=-1) if k else np.zeros(shape + (0,))
+
+    batched.source = fn.source  # type: ignore[attr-defined]
+    return batched
+
+
+def compile_scalar(expr: ast.Expr, symbols: Symbols) -> Callable[[np.ndarray], np.ndarray]:
+    """``f(states [..., n]) -> [...]``: one expression over states (formulas, regions)."""
+    fn = compile_function([expr], symbols, NUMPY)
+
+    def scalar(states: np.ndarray) -> np.ndarray:
+        out = fn(np.moveaxis(states, -1, 0), ())[0]
+        return np.broadcast_to(np.asarray(out, dtype=float), states.shape[:-1])
+
+    return scalar
+
+
+def interval_range(expr: ast.Expr, symbols: Symbols, state_box: Sequence[tuple[float, float]],
+                   action_box: Sequence[tuple[float, float]] = ()) -> intervals.Interval:
+    """A sound enclosure of ``expr`` over the box of states (and actions)."""
+    fn = compile_function([expr], symbols, INTERVAL)
+    S = [intervals.Interval(float(lo), float(hi)) for lo, hi in state_box]
+    A = [intervals.Interval(float(lo), float(hi)) for lo, hi in action_box]
+    try:
+        out = fn(S, A)[0]
+    except (ZeroDivisionError, OverflowError, ValueError):
+        return intervals.Interval(-math.inf, math.inf)
+    return intervals.Interval.of(out)
+
+
+def evaluate_constant(expr: ast.Expr, consts: Mapping[str, float]) -> float:
+    """Fold a constant expression (no states, actions or lets) to a float."""
+    fn = compile_function([expr], Symbols(consts, {}, {}, {}), _MATH)
+    with np.errstate(all="ignore"):
+        return float(fn((), ())[0])
+
+
+def _safe_math(f):
+    def g(*args):
+        try:
+            return f(*args)
+        except (ValueError, OverflowError, ZeroDivisionError):
+            return math.nan
+    return g
+
+
+_MATH = SimpleNamespace(
+    **{k: _safe_math(getattr(math, k)) for k in ("sin", "cos", "tan", "asin", "acos", "atan", "atan2", "sinh", "cosh", "tanh", "exp", "log", "sqrt")},
+    abs=abs, min=min, max=max, norm=lambda *xs: math.sqrt(sum(x * x for x in xs)),
+    pow=_safe_math(lambda a, b: float(a) ** float(b) if not (a < 0 and not float(b).is_integer()) else math.nan),
+)
+
+
+def names_in(e: ast.Expr) -> Iterable[ast.Name]:
+    """Every Name node in an expression (formulas included), in source order."""
+    if isinstance(e, ast.Name):
+        yield e
+    for child in _children(e):
+        yield from names_in(child)
+
+
+def _children(e) -> tuple:
+    if isinstance(e, (ast.Unary, ast.Not)):
+        return (e.arg,)
+    if isinstance(e, ast.Temporal):
+        return (e.arg,)
+    if isinstance(e, (ast.Binary, ast.Compare, ast.Logic, ast.Temporal2)):
+        return (e.left, e.right)
+    if isinstance(e, ast.Call):
+        return e.args
+    return ()
+
+
+def degree(e: ast.Expr, symbols: Symbols) -> float:
+    """Polynomial degree in states and actions (constants 0); ``inf`` when not polynomial.
+
+    Used to check that ``integrator exact`` is given linear (affine) dynamics.
+    """
+    if isinstance(e, (ast.Number, ast.Infinity)):
+        return 0
+    if isinstance(e, ast.Name):
+        if e.id in symbols.states or e.id in symbols.actions:
+            return 1
+        if e.id in symbols.lets:
+            return degree(symbols.lets[e.id], symbols)
+        return 0
+    if isinstance(e, ast.Unary):
+        return degree(e.arg, symbols)
+    if isinstance(e, ast.Binary):
+        a, b = degree(e.left, symbols), degree(e.right, symbols)
+        if e.op in "+-":
+            return max(a, b)
+        if e.op == "*":
+            return a + b
+        if e.op == "/":
+            return a if b == 0 else math.inf
+        if e.op == "^":
+            if b != 0:
+                return math.inf
+            if a == 0:
+                return 0
+            try:
+                p = evaluate_constant(e.right, symbols.consts)
+            except Exception:  # pragma: no cover - defensive
+                return math.inf
+            return a * p if p >= 0 and float(p).is_integer() else math.inf
+    if isinstance(e, ast.Call):
+        return 0 if all(degree(a, symbols) == 0 for a in e.args) else math.inf
+    return math.inf

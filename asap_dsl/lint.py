@@ -1,0 +1,228 @@
+"""Lint rules over the checked model: small classes, one stable code each.
+
+The checker reports what prevents compiling (names, types, units, causality). These rules look
+at a program that compiled and judge whether it means what its author likely wants. Each rule is
+a subclass of :class:`LintRule` registered in :data:`LINT_RULES`; its ``code`` is listed in
+:data:`asap_dsl.diagnostics.RULES` and documented in ``docs/language.md``.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import ClassVar, Iterator, Optional
+
+import numpy as np
+
+from .diagnostics import Collector, Span
+from .expr import degree
+from .model import ProgramModel, RegionModel, TaskModel
+from .stl import ir
+
+
+class LintRule:
+    """A rule: ``check`` reports into the collector (it may report several times)."""
+
+    code: ClassVar[str]
+
+    def check(self, prog: ProgramModel, out: Collector) -> None:  # pragma: no cover - interface
+        raise NotImplementedError
+
+
+LINT_RULES: list[type[LintRule]] = []
+
+
+def rule(cls: type[LintRule]) -> type[LintRule]:
+    LINT_RULES.append(cls)
+    return cls
+
+
+@rule
+class InitOutsideSpace(LintRule):
+    code = "E108"
+
+    def check(self, prog, out):
+        for s in prog.system.states:
+            if s.init_span is not None and (s.init_low < s.low or s.init_high > s.high):
+                out.add(self.code, f"the init range [{s.init_low:g}, {s.init_high:g}] of '{s.name}' is not inside its state "
+                        f"space [{s.low:g}, {s.high:g}]", s.init_span)
+
+
+@rule
+class ExactNeedsLinear(LintRule):
+    code = "E111"
+
+    def check(self, prog, out):
+        sys = prog.system
+        if sys.kind != "ode" or sys.integrator.method != "exact":
+            return
+        for s, rhs in zip(sys.states, sys.equations):
+            if degree(rhs, sys.symbols) > 1:
+                out.add(self.code, f"`integrator exact` needs linear dynamics, but the equation of '{s.name}' is not linear "
+                        "in states and actions", sys.integrator.span or sys.dynamics_span,
+                        hint="use `integrator rk4(substeps = 4)` for non-linear dynamics")
+                return
+
+
+@rule
+class ToleranceAboveDeadline(LintRule):
+    code = "E112"
+
+    def check(self, prog, out):
+        for t in prog.tasks.values():
+            for tol in t.tolerances:
+                if tol > t.deadline:
+                    out.add(self.code, f"tolerance {tol} of task '{t.name}' is above its deadline {t.deadline}",
+                            t.clause_spans.get("tolerances", t.span), hint="evaluation never runs past the deadline")
+            if t.episode[1] > t.deadline:
+                out.add(self.code, f"the longest episode ({t.episode[1]} steps) of task '{t.name}' is above its deadline "
+                        f"{t.deadline}", t.clause_spans.get("episode", t.span),
+                        hint="the deadline is the longest training episode")
+
+
+def _goal_regions(prog: ProgramModel, t: TaskModel) -> list[RegionModel]:
+    return [prog.regions[r] for r in t.asap_regions if r in prog.regions]
+
+
+def _region_box_gap(region: RegionModel, prog: ProgramModel) -> Optional[tuple[float, float]]:
+    """(distance from the state space to the region, share of the region's extent inside), states only."""
+    idx = {s.name: s for s in prog.system.states}
+    if not all(c in idx for c in region.coords):
+        return None
+    lo = np.array([idx[c].low for c in region.coords])
+    hi = np.array([idx[c].high for c in region.coords])
+    if region.kind == "ball":
+        c = np.asarray(region.centre)
+        gap = float(np.linalg.norm(np.maximum(lo - c, 0) + np.maximum(c - hi, 0)))
+        inside = bool(np.all(c - region.radius >= lo) and np.all(c + region.radius <= hi))
+        return gap - region.radius, 1.0 if inside else 0.0
+    rlo, rhi = np.asarray(region.low), np.asarray(region.high)
+    gap_vec = np.maximum(lo - rhi, 0) + np.maximum(rlo - hi, 0)
+    inside = bool(np.all(rlo >= lo) and np.all(rhi <= hi))
+    return float(np.linalg.norm(gap_vec)) if np.any(gap_vec > 0) else -1.0, 1.0 if inside else 0.0
+
+
+@rule
+class GoalOutsideSpace(LintRule):
+    """E113 when the goal region cannot meet the state space; W206 when part of it lies outside."""
+
+    code = "E113"
+
+    def check(self, prog, out):
+        for t in prog.tasks.values():
+            for region in _goal_regions(prog, t):
+                gap = _region_box_gap(region, prog)
+                if gap is None:
+                    continue
+                distance, inside = gap
+                if distance > 0:
+                    out.add("E113", f"region '{region.name}' of task '{t.name}' lies outside the state space: the goal is "
+                            "unreachable", t.clause_spans["asap"])
+                elif inside < 1.0:
+                    out.add("W206", f"part of region '{region.name}' of task '{t.name}' lies outside the state space",
+                            t.clause_spans["asap"], hint="those goal states end the episode as out of bounds")
+
+
+def regions_overlap(a: RegionModel, b: RegionModel) -> Optional[bool]:
+    """Whether two regions share a point (None when their coordinates differ)."""
+    if set(a.coords) != set(b.coords):
+        return None
+    order = list(a.coords)
+
+    def arr(region, values):
+        return np.array([values[region.coords.index(c)] for c in order])
+
+    if a.kind == "ball" and b.kind == "ball":
+        return float(np.linalg.norm(np.asarray(a.centre) - arr(b, b.centre))) <= a.radius + b.radius
+    if a.kind == "box" and b.kind == "box":
+        return bool(np.all(np.asarray(a.low) <= arr(b, b.high)) and np.all(arr(b, b.low) <= np.asarray(a.high)))
+    ball, box = (a, b) if a.kind == "ball" else (b, a)
+    c = arr(ball, ball.centre) if ball is b else np.asarray(ball.centre)
+    lo = np.asarray(box.low) if box is a else arr(box, box.low)
+    hi = np.asarray(box.high) if box is a else arr(box, box.high)
+    return float(np.linalg.norm(c - np.clip(c, lo, hi))) <= ball.radius
+
+
+@rule
+class RegionsOverlap(LintRule):
+    code = "W201"
+
+    def check(self, prog, out):
+        for t in prog.tasks.values():
+            for g in _goal_regions(prog, t):
+                for name in t.avoid_regions:
+                    if name in prog.regions and regions_overlap(g, prog.regions[name]):
+                        out.add(self.code, f"the asap region '{g.name}' overlaps the avoid region '{name}' in task '{t.name}': "
+                                "the target is partly unsafe", t.clause_spans.get("avoid", t.span))
+
+
+@rule
+class UnusedName(LintRule):
+    code = "W202"
+
+    def check(self, prog, out):
+        for name, (kind, span) in prog.declared.items():
+            if kind in ("constant", "let", "region", "formula") and name not in prog.used:
+                out.add(self.code, f"{kind} '{name}' is never used", span)
+
+
+@rule
+class HorizonBeyondDeadline(LintRule):
+    code = "W203"
+
+    def check(self, prog, out):
+        for t in prog.tasks.values():
+            for clause, node in (("asap", t.asap), ("avoid", t.avoid)):
+                if node is None:
+                    continue
+                past = ir.history(node)
+                if past > t.deadline:
+                    shown = "unbounded" if math.isinf(past) else f"{past:g} steps"
+                    if math.isinf(past):
+                        continue  # [0, inf] past windows are the usual "ever since the start"
+                    out.add(self.code, f"`{clause}` of task '{t.name}' looks {shown} into the past, beyond the deadline "
+                            f"of {t.deadline} steps", t.clause_spans[clause],
+                            hint="no episode is that long: the window is always cut")
+
+
+@rule
+class RSatBelowBound(LintRule):
+    code = "W204"
+
+    def check(self, prog, out):
+        for t in prog.tasks.values():
+            if t.r_sat is None:
+                continue
+            bound = t.r_sat_bound
+            if math.isfinite(bound) and t.r_sat <= bound:
+                out.add(self.code, f"r_sat = {t.r_sat:g} of task '{t.name}' is not above the theorem's bound "
+                        f"rho_max + (rho_max - rho_min) * k_max = {bound:.6g}", t.clause_spans["r_sat"],
+                        hint="an optimal policy may then not be as-soon-as-possible; `r_sat auto` derives a safe value")
+
+
+@rule
+class UnboundedRobustness(LintRule):
+    code = "W207"
+
+    def check(self, prog, out):
+        for t in prog.tasks.values():
+            if t.r_sat is not None or t.reward.kind != "asap":
+                continue
+            lo, hi = t.rho_bounds
+            if not (math.isfinite(lo) and math.isfinite(hi)):
+                out.add(self.code, f"the robustness of `asap` in task '{t.name}' has no finite bounds over the state space "
+                        f"([{lo:g}, {hi:g}]), so `r_sat auto` cannot apply the theorem", t.clause_spans["asap"],
+                        hint="bound the state space, or give a numeric r_sat")
+
+
+def lint(prog: ProgramModel, out: Collector, rules: Optional[list[type[LintRule]]] = None) -> None:
+    """Run every lint rule (or the given ones) on a checked program."""
+    for cls in rules or LINT_RULES:
+        cls().check(prog, out)
+
+
+def rule_codes() -> Iterator[str]:
+    for cls in LINT_RULES:
+        yield cls.code
+
+
+__all__ = ["LintRule", "LINT_RULES", "lint", "regions_overlap", "Span"]

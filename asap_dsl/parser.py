@@ -1,0 +1,507 @@
+"""Source text to AST: the Lark grammar, positioned syntax errors in plain words.
+
+The grammar lives in ``grammar/asap.lark`` (shipped inside the package as
+``asap_dsl/grammar/asap.lark``); the LALR parser is built once per process.
+"""
+
+from __future__ import annotations
+
+import functools
+from importlib import resources
+from pathlib import Path
+from typing import Any, Optional
+
+import lark
+from lark import Token, Transformer, v_args
+
+from . import ast
+from .diagnostics import Collector, Diagnostic, Span, SpecError, make
+
+_CANONICAL = {
+    "->": "implies", "implies": "implies",
+    "or": "or", "|": "or",
+    "and": "and", "&": "and",
+    "always": "always", "G": "always",
+    "eventually": "eventually", "F": "eventually",
+    "historically": "historically", "H": "historically",
+    "once": "once", "O": "once",
+    "until": "until", "U": "until",
+    "since": "since", "S": "since",
+}
+
+# Plain words for the grammar's named terminals (punctuation and keywords print as themselves).
+_TERMINAL_WORDS = {
+    "NAME": "a name",
+    "NUMBER": "a number",
+    "DURATION": "a time such as 3s or 500ms",
+    "STRING": 'a string in double quotes',
+    "PRIME": "a prime (')",
+    "$END": "the end of the file",
+}
+
+
+def _grammar_text() -> str:
+    # Installed: the grammar ships inside the package. From a source checkout: grammar/asap.lark.
+    try:
+        return resources.files("asap_dsl").joinpath("grammar/asap.lark").read_text(encoding="utf-8")
+    except (FileNotFoundError, ModuleNotFoundError, NotADirectoryError):
+        here = Path(__file__).resolve().parent.parent / "grammar" / "asap.lark"
+        return here.read_text(encoding="utf-8")
+
+
+@functools.lru_cache(maxsize=None)
+def _lark() -> lark.Lark:
+    return lark.Lark(_grammar_text(), parser="lalr", propagate_positions=True, maybe_placeholders=True)
+
+
+@functools.lru_cache(maxsize=None)
+def _terminal_patterns() -> dict[str, str]:
+    """Terminal name -> how to show it to a user."""
+    out = {}
+    for t in _lark().terminals:
+        if t.name in _TERMINAL_WORDS:
+            out[t.name] = _TERMINAL_WORDS[t.name]
+        elif isinstance(t.pattern, lark.lexer.PatternStr):
+            out[t.name] = f"'{t.pattern.value}'"
+        else:
+            out[t.name] = t.name.lower()
+    out["$END"] = _TERMINAL_WORDS["$END"]
+    return out
+
+
+def _describe_expected(names: set[str]) -> str:
+    words = _terminal_patterns()
+    shown = sorted({words.get(n, n.lower()) for n in names if not n.startswith("__") or n in words})
+    # Anonymous punctuation (__ANON_n) is mapped through its pattern above; never print raw names.
+    shown = [s for s in shown if not s.startswith("__")]
+    if not shown:
+        return ""
+    if len(shown) > 8:
+        return "expected one of " + ", ".join(shown[:8]) + ", ..."
+    if len(shown) == 1:
+        return "expected " + shown[0]
+    return "expected " + ", ".join(shown[:-1]) + " or " + shown[-1]
+
+
+def _describe_token(tok: Token) -> str:
+    if tok.type == "$END":
+        return "the end of the file"
+    if tok.type == "NAME":
+        return f"name '{tok}'"
+    if tok.type in ("NUMBER", "DURATION"):
+        return f"number {tok}"
+    if tok.type == "STRING":
+        return f"string {tok}"
+    if tok.isalpha():
+        return f"keyword '{tok}'"
+    return f"'{tok}'"
+
+
+def _span_of_token(tok: Token) -> Span:
+    line = tok.line or 1
+    col = tok.column or 1
+    end_line = tok.end_line or line
+    end_col = tok.end_column or col + max(1, len(tok))
+    return Span(line, col, end_line, end_col)
+
+
+def _syntax_diagnostic(err: lark.exceptions.LarkError, text: str, file: str) -> Diagnostic:
+    lines = text.splitlines() or [""]
+    if isinstance(err, lark.exceptions.UnexpectedCharacters):
+        ch = text[err.pos_in_stream] if err.pos_in_stream < len(text) else ""
+        what = f"unexpected character {ch!r}" if ch.isprintable() else f"unexpected character {ch!r} (not printable)"
+        hint = None
+        if ch == '"':
+            hint = "strings must end on the same line with a closing double quote"
+        elif ch == ".":
+            hint = "write a number with a digit before the point (0.5), or `a..b` for an episode range"
+        span = Span(err.line, err.column, err.line, err.column + 1)
+        return make("E001", what, span, file, hint)
+    if isinstance(err, lark.exceptions.UnexpectedToken):
+        tok = err.token
+        if tok.type == "$END":
+            line = len(lines)
+            col = len(lines[-1]) + 1 if lines else 1
+            span = Span(line, col, line, col + 1)
+        else:
+            span = _span_of_token(tok)
+        expected = _describe_expected(set(err.expected))
+        message = f"unexpected {_describe_token(tok)}" + (f"; {expected}" if expected else "")
+        hint = None
+        if tok.type != "NAME" and tok.isidentifier() and "NAME" in err.expected:
+            hint = f"'{tok}' is a reserved word and cannot be used as a name"
+        elif tok.type == "$END":
+            hint = "a '}', ')' or ']' may be missing"
+        elif tok == "=" and "PRIME" in err.expected:
+            hint = "an ODE equation is written x' = expr"
+        return make("E001", message, span, file, hint)
+    if isinstance(err, lark.exceptions.UnexpectedEOF):
+        line = len(lines)
+        col = len(lines[-1]) + 1 if lines else 1
+        return make("E001", "unexpected end of the file", Span(line, col, line, col + 1), file, "a '}', ')' or ']' may be missing")
+    return make("E001", "the text could not be parsed", Span(1, 1, 1, 2), file)
+
+
+def _span(meta: Any) -> Span:
+    if getattr(meta, "empty", True):
+        return Span(1, 1, 1, 1)
+    return Span(meta.line, meta.column, meta.end_line, meta.end_column)
+
+
+def _join(a: Span, b: Span) -> Span:
+    return Span(a.line, a.column, b.end_line, b.end_column)
+
+
+def _expr_span(e: Any) -> Span:
+    return e.span
+
+
+@v_args(meta=True)
+class _Builder(Transformer):
+    """Lark tree -> AST nodes. Structural problems go to ``self.diag``."""
+
+    def __init__(self, diag: Collector):
+        super().__init__()
+        self.diag = diag
+
+    # -------------------------------------------------------------- expressions
+    def number(self, meta, children):
+        tok = children[0]
+        return ast.Number(float(tok), _span_of_token(tok))
+
+    def infinity(self, meta, children):
+        return ast.Infinity(_span(meta))
+
+    def name(self, meta, children):
+        tok = children[0]
+        return ast.Name(str(tok), _span_of_token(tok))
+
+    def call(self, meta, children):
+        tok = children[0]
+        args = tuple(c for c in children[1:] if c is not None)
+        return ast.Call(str(tok), args, _span(meta), _span_of_token(tok))
+
+    def paren(self, meta, children):
+        return children[0]
+
+    def in_region(self, meta, children):
+        tok = children[-1]
+        return ast.InRegion(str(tok), _span(meta), _span_of_token(tok))
+
+    def true(self, meta, children):
+        return ast.BoolLiteral(True, _span(meta))
+
+    def false(self, meta, children):
+        return ast.BoolLiteral(False, _span(meta))
+
+    def neg(self, meta, children):
+        return ast.Unary("-", children[0], _span(meta))
+
+    def unary(self, meta, children):  # unary plus: `+x` is x
+        return children[0]
+
+    def pow(self, meta, children):
+        return ast.Binary("^", children[0], children[1], _span(meta))
+
+    def arith(self, meta, children):
+        left, (op, _), right = children
+        return ast.Binary(op, left, right, _span(meta))
+
+    def compare(self, meta, children):
+        left, (op, op_span), right = children
+        return ast.Compare(op, left, right, _span(meta), op_span)
+
+    def negation(self, meta, children):
+        return ast.Not(children[1], _span(meta))
+
+    def binary_logic(self, meta, children):
+        left, (op, _), right = children
+        return ast.Logic(_CANONICAL[op], left, right, _span(meta))
+
+    def temporal1(self, meta, children):
+        (op, op_span), interval, arg = children
+        return ast.Temporal(_CANONICAL[op], interval, arg, _span(meta), op_span)
+
+    def temporal2(self, meta, children):
+        left, (op, op_span), interval, right = children
+        return ast.Temporal2(_CANONICAL[op], interval, left, right, _span(meta), op_span)
+
+    def _op(self, meta, children):
+        tok = children[0]
+        return (str(tok), _span_of_token(tok))
+
+    implies_op = or_op = and_op = not_op = temporal1_op = temporal2_op = _op
+    compare_op = add_op = mul_op = _op
+
+    def interval(self, meta, children):
+        lo, hi = children
+        return ast.IntervalSyntax(lo, hi, _span(meta))
+
+    def duration(self, meta, children):
+        tok = children[0]
+        span = _span_of_token(tok)
+        if tok.type == "INF":
+            return ast.Duration(float("inf"), "steps", span)
+        if tok.type == "DURATION":
+            unit = "ms" if tok.endswith("ms") else "s"
+            return ast.Duration(float(tok[: -len(unit)]), unit, span)
+        return ast.Duration(float(tok), "steps", span)
+
+    def range(self, meta, children):
+        return ast.Range(children[0], children[1], _span(meta))
+
+    # -------------------------------------------------------------- system
+    def const_decl(self, meta, children):
+        tok, value = children
+        return ast.ConstDecl(str(tok), value, _span(meta), _span_of_token(tok))
+
+    def bare_binding(self, meta, children):
+        tok, value = children
+        return ("bare_binding", ast.ConstDecl(str(tok), value, _span(meta), _span_of_token(tok)))
+
+    def state_decl(self, meta, children):
+        tok, space, init = children
+        return ast.StateDecl(str(tok), space, init, _span(meta), _span_of_token(tok))
+
+    def init_clause(self, meta, children):
+        return children[0]
+
+    def action_decl(self, meta, children):
+        tok, bounds = children
+        return ast.ActionDecl(str(tok), bounds, _span(meta), _span_of_token(tok))
+
+    def let_decl(self, meta, children):
+        tok, value = children
+        return ast.LetDecl(str(tok), value, _span(meta), _span_of_token(tok))
+
+    def dt_decl(self, meta, children):
+        return ("dt", children[0])
+
+    def ode_eq(self, meta, children):
+        tok, _prime, value = children
+        return ast.Equation(str(tok), value, _span(meta), _span_of_token(tok))
+
+    def map_eq(self, meta, children):
+        tok, value = children
+        return ast.Equation(str(tok), value, _span(meta), _span_of_token(tok))
+
+    def ode_block(self, meta, children):
+        eqs = tuple(c for c in children if isinstance(c, ast.Equation))
+        return ast.Dynamics("ode", eqs, _span(meta))
+
+    def map_block(self, meta, children):
+        eqs = tuple(c for c in children if isinstance(c, ast.Equation))
+        return ast.Dynamics("map", eqs, _span(meta))
+
+    def simulator_decl(self, meta, children):
+        return ast.SimulatorDecl(str(children[0])[1:-1], _span(meta))
+
+    def setting(self, meta, children):
+        tok, value = children
+        return ast.Setting(str(tok), value, _span(meta), _span_of_token(tok))
+
+    train_setting = setting
+
+    def integrator_args(self, meta, children):
+        return tuple(c for c in children if c is not None)
+
+    reward_args = integrator_args
+
+    def integrator_decl(self, meta, children):
+        tok, settings = children
+        return ast.IntegratorDecl(str(tok), settings or (), _span(meta), _span_of_token(tok))
+
+    def sep(self, meta, children):
+        return ("sep", str(children[0]))
+
+    def _attach(self, items: list, bare_kind: str, head_type: type, extend) -> list:
+        """Fold comma-continued items (``const a = 1, b = 2``) into their head."""
+        out: list = []
+        last_sep: Optional[str] = None
+        for item in items:
+            if isinstance(item, tuple) and item[0] == "sep":
+                last_sep = item[1]
+                continue
+            if isinstance(item, tuple) and item[0] == bare_kind:
+                payload = item[1]
+                head = next((o for o in reversed(out) if not (isinstance(o, tuple) and o[0] == "sep")), None)
+                if last_sep == "," and head is not None and isinstance(head, head_type):
+                    extend(out, payload)
+                else:
+                    self._misplaced(bare_kind, payload)
+                last_sep = None
+                continue
+            out.append(item)
+            last_sep = None
+        return out
+
+    def _misplaced(self, kind: str, payload: Any) -> None:
+        if kind == "bare_binding":
+            self.diag.add(
+                "E119", f"'{payload.name} = ...' is not a declaration here", payload.span,
+                hint=f"write `const {payload.name} = ...` or `let {payload.name} = ...`",
+            )
+        elif kind == "bare_duration":
+            self.diag.add("E119", "a number on its own does not belong to any clause", payload.span,
+                          hint="only `tolerances` takes a comma-separated list of numbers")
+        else:
+            self.diag.add("E119", f"'{payload[0]}' on its own does not belong to any clause", payload[1],
+                          hint="only `observe` takes a comma-separated list of names")
+
+    def system(self, meta, children):
+        tok = children[0]
+        consts_seen: list = []
+
+        def extend_const(out, payload):
+            out.append(payload)
+
+        items = self._attach(list(children[1:]), "bare_binding", ast.ConstDecl, extend_const)
+        consts, states, actions, lets, dts, dyn, integ = [], [], [], [], [], [], []
+        for it in items:
+            if isinstance(it, ast.ConstDecl):
+                consts.append(it)
+            elif isinstance(it, ast.StateDecl):
+                states.append(it)
+            elif isinstance(it, ast.ActionDecl):
+                actions.append(it)
+            elif isinstance(it, ast.LetDecl):
+                lets.append(it)
+            elif isinstance(it, tuple) and it[0] == "dt":
+                dts.append(it[1])
+            elif isinstance(it, (ast.Dynamics, ast.SimulatorDecl)):
+                dyn.append(it)
+            elif isinstance(it, ast.IntegratorDecl):
+                integ.append(it)
+        del consts_seen
+        return ast.System(str(tok), tuple(consts), tuple(states), tuple(actions), tuple(lets), tuple(dts),
+                          tuple(dyn), tuple(integ), _span(meta), _span_of_token(tok))
+
+    # -------------------------------------------------------------- regions
+    def vector(self, meta, children):
+        return ("vector", tuple(c for c in children if c is not None), _span(meta))
+
+    def named_point(self, meta, children):
+        return ("named", tuple(c for c in children if c is not None), _span(meta))
+
+    def coord(self, meta, children):
+        tok, value = children
+        return ast.Coord(str(tok), value, _span(meta))
+
+    def ball(self, meta, children):
+        (kind, items, cspan), radius = children
+        return ast.Ball(items, kind == "named", radius, _span(meta), cspan)
+
+    def side(self, meta, children):
+        tok, bounds = children
+        return ast.BoxSide(str(tok), bounds, _span(meta))
+
+    def box(self, meta, children):
+        return ast.Box(tuple(c for c in children if c is not None), _span(meta))
+
+    def region_decl(self, meta, children):
+        tok, shape = children
+        return ast.RegionDecl(str(tok), shape, _span(meta), _span_of_token(tok))
+
+    def formula_decl(self, meta, children):
+        tok, body = children
+        return ast.FormulaDecl(str(tok), body, _span(meta), _span_of_token(tok))
+
+    # -------------------------------------------------------------- tasks
+    def _clause(keyword):
+        def method(self, meta, children):
+            value = children[0] if len(children) == 1 else tuple(children)
+            return ast.Clause(keyword, value, _span(meta))
+        return method
+
+    asap_clause = _clause("asap")
+    avoid_clause = _clause("avoid")
+    deadline_clause = _clause("deadline")
+    r_sat_clause = _clause("r_sat")
+
+    def tolerances_clause(self, meta, children):
+        return ast.Clause("tolerances", (children[0],), _span(meta))
+
+    def bare_duration(self, meta, children):
+        return ("bare_duration", children[0])
+
+    def observe_item(self, meta, children):
+        return (str(children[0]), _span_of_token(children[0]))
+
+    def observe_clause(self, meta, children):
+        return ast.Clause("observe", (children[0],), _span(meta))
+
+    def bare_name(self, meta, children):
+        return ("bare_name", children[0])
+
+    def episode_clause(self, meta, children):
+        return ast.Clause("episode", (children[0], children[1]), _span(meta))
+
+    def reward_kind(self, meta, children):
+        return (str(children[0]), _span_of_token(children[0]))
+
+    def reward_clause(self, meta, children):
+        (kind, _), settings = children
+        return ast.Clause("reward", ast.RewardSyntax(kind, settings or (), _span(meta)), _span(meta))
+
+    def train_block(self, meta, children):
+        settings = tuple(c for c in children if isinstance(c, ast.Setting))
+        return ast.Clause("train", settings, _span(meta))
+
+    def task_decl(self, meta, children):
+        tok = children[0]
+
+        def extend_clause(out, payload):
+            head = out[-1]
+            out[-1] = ast.Clause(head.keyword, head.value + (payload,), _join(head.span, payload[1] if isinstance(payload, tuple) else payload.span))
+
+        items = list(children[1:])
+        # `tolerances 30, 25` and `observe state, time` continue with comma-separated items.
+        merged: list = []
+        last_sep = None
+        for item in items:
+            if isinstance(item, tuple) and item[0] == "sep":
+                last_sep = item[1]
+                continue
+            if isinstance(item, tuple) and item[0] in ("bare_duration", "bare_name"):
+                want = "tolerances" if item[0] == "bare_duration" else "observe"
+                head = merged[-1] if merged else None
+                if last_sep == "," and isinstance(head, ast.Clause) and head.keyword == want:
+                    extend_clause(merged, item[1])
+                else:
+                    self._misplaced(item[0], item[1])
+                last_sep = None
+                continue
+            merged.append(item)
+            last_sep = None
+        clauses = tuple(c for c in merged if isinstance(c, ast.Clause))
+        return ast.TaskDecl(str(tok), clauses, _span(meta), _span_of_token(tok))
+
+    def start(self, meta, children):
+        systems = tuple(c for c in children if isinstance(c, ast.System))
+        regions = tuple(c for c in children if isinstance(c, ast.RegionDecl))
+        formulas = tuple(c for c in children if isinstance(c, ast.FormulaDecl))
+        tasks = tuple(c for c in children if isinstance(c, ast.TaskDecl))
+        return ast.Module(self.diag.file, systems, regions, formulas, tasks)
+
+
+def parse(text: str, file: str = "<string>") -> tuple[ast.Module, list[Diagnostic]]:
+    """Parse ``text`` into a module.
+
+    A syntax error raises :class:`SpecError` (only the first one: later ones are unreliable
+    after the parser has lost its way). Structural problems that the parse survives are returned
+    as diagnostics for the checker to report with its own.
+    """
+    diag = Collector(file)
+    try:
+        tree = _lark().parse(text)
+    except lark.exceptions.LarkError as err:
+        raise SpecError([_syntax_diagnostic(err, text, file)], text) from None
+    except RecursionError:
+        raise SpecError([make("E001", "the text nests too deeply to parse", Span(1, 1, 1, 2), file)], text) from None
+    try:
+        module = _Builder(diag).transform(tree)
+    except lark.exceptions.VisitError as err:  # a builder bug must still not reach the user raw
+        raise SpecError([make("E001", f"the text could not be read: {err.orig_exc}", Span(1, 1, 1, 2), file)], text) from None
+    except RecursionError:
+        raise SpecError([make("E001", "the text nests too deeply to parse", Span(1, 1, 1, 2), file)], text) from None
+    return module, diag.items

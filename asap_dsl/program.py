@@ -1,0 +1,225 @@
+"""The public Python API: ``load``/``loads`` a spec into a :class:`Program`.
+
+A program is the checked model plus the objects users evaluate: :class:`Formula` (offline
+robustness, satisfaction, first-satisfaction step, online monitors) and :class:`Task`.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from pathlib import Path
+from typing import Any, Optional, Union
+
+import numpy as np
+
+from . import checker, lint, parser
+from .diagnostics import Collector, Diagnostic, Span, SpecError, make
+from .model import FormulaModel, ProgramModel, RegionModel, SystemModel, TaskModel, formula_bounds
+from .stl import ir
+
+
+class Formula:
+    """A compiled formula over the states of a system."""
+
+    def __init__(self, node: ir.Formula, n_state: int, name: str = "<formula>"):
+        self.ir = node
+        self.n_state = n_state
+        self.name = name
+
+    def __repr__(self) -> str:
+        return f"Formula({self.name}: {self.text})"
+
+    @property
+    def text(self) -> str:
+        return ir.to_text(self.ir)
+
+    @property
+    def causal(self) -> bool:
+        return ir.is_causal(self.ir)
+
+    @property
+    def horizon(self) -> float:
+        """Steps into the future the value at t depends on (inf if unbounded)."""
+        return ir.horizon(self.ir)
+
+    @property
+    def history(self) -> float:
+        """Steps into the past the value at t depends on (inf if unbounded)."""
+        return ir.history(self.ir)
+
+    @property
+    def bounds(self) -> tuple[float, float]:
+        """Robustness bounds over the state space, by interval analysis."""
+        return formula_bounds(self.ir)
+
+    def robustness(self, traces: Any) -> np.ndarray:
+        """Robustness at every step: ``[B, T, n]`` -> ``[B, T]`` (or ``[T, n]`` -> ``[T]``)."""
+        from .stl import offline
+
+        return offline.robustness(self.ir, traces, n_state=self.n_state)
+
+    def satisfied(self, traces: Any) -> np.ndarray:
+        """Boolean satisfaction at every step (exact comparisons), same shapes as robustness."""
+        from .stl import offline
+
+        return offline.satisfied(self.ir, traces, n_state=self.n_state)
+
+    def first_time(self, traces: Any) -> Union[np.ndarray, float]:
+        """``t_phi``: the first step at which the formula holds, ``inf`` if never."""
+        from .stl import offline
+
+        return offline.first_time(self.ir, traces, n_state=self.n_state)
+
+    def monitor(self, batch: int = 1):
+        """An online monitor: ``update(states [B, n]) -> robustness at the newest step``."""
+        from .stl import online
+
+        return online.monitor_for(self.ir, batch, n_state=self.n_state)
+
+
+class Task:
+    """A task of the spec: its formulas and settings (see :class:`asap_dsl.model.TaskModel`)."""
+
+    def __init__(self, model: TaskModel, n_state: int):
+        self.model = model
+        self._n = n_state
+
+    def __repr__(self) -> str:
+        return f"Task({self.model.name})"
+
+    def __getattr__(self, item: str):
+        return getattr(self.model, item)
+
+    @property
+    def asap(self) -> Formula:
+        return Formula(self.model.asap, self._n, f"{self.model.name}.asap")
+
+    @property
+    def avoid(self) -> Optional[Formula]:
+        return None if self.model.avoid is None else Formula(self.model.avoid, self._n, f"{self.model.name}.avoid")
+
+    @property
+    def spec(self) -> Formula:
+        """``eventually[0, D] asap and always[0, D] not avoid``."""
+        return Formula(self.model.spec, self._n, f"{self.model.name}.spec")
+
+
+class Program:
+    """A checked spec. Build one with :func:`load` or :func:`loads`."""
+
+    def __init__(self, model: ProgramModel, warnings: list[Diagnostic]):
+        self.model = model
+        self.warnings = warnings
+
+    def __repr__(self) -> str:
+        return f"Program({self.model.file}: system {self.system.name}, tasks {', '.join(self.tasks)})"
+
+    @property
+    def file(self) -> str:
+        return self.model.file
+
+    @property
+    def source(self) -> str:
+        return self.model.source
+
+    @property
+    def system(self) -> SystemModel:
+        return self.model.system
+
+    @property
+    def tasks(self) -> tuple[str, ...]:
+        return tuple(self.model.tasks)
+
+    @property
+    def formulas(self) -> tuple[str, ...]:
+        return tuple(self.model.formulas)
+
+    @property
+    def regions(self) -> dict[str, RegionModel]:
+        return dict(self.model.regions)
+
+    def formula(self, name: str) -> Formula:
+        if name not in self.model.formulas:
+            raise KeyError(_missing("formula", name, self.formulas))
+        return Formula(self.model.formulas[name].ir, self.system.n_state, name)
+
+    def task(self, name: Optional[str] = None) -> Task:
+        """The named task; without a name, the only task (an error if there are several)."""
+        if name is None:
+            if len(self.tasks) != 1:
+                raise KeyError(f"{self.file} has tasks {', '.join(self.tasks) or '(none)'}: name one")
+            name = self.tasks[0]
+        if name not in self.model.tasks:
+            raise KeyError(_missing("task", name, self.tasks))
+        return Task(self.model.tasks[name], self.system.n_state)
+
+
+def _missing(kind: str, name: str, known: tuple[str, ...]) -> str:
+    from .diagnostics import closest
+
+    sug = closest(name, known)
+    tail = f"; did you mean '{sug}'?" if sug else f"; the file has: {', '.join(known) or 'none'}"
+    return f"no {kind} named '{name}'{tail}"
+
+
+def analyse(text: str, name: str = "<string>") -> tuple[Optional[ProgramModel], list[Diagnostic]]:
+    """Parse, check and lint; return the model (None on errors) and every diagnostic, sorted."""
+    module, structural = parser.parse(text, name)
+    diag = Collector(name, list(structural))
+    model = checker.check(module, text, diag)
+    if model is not None and not diag.has_errors:
+        lint.lint(model, diag)
+    if diag.has_errors:
+        model = None
+    return model, diag.sorted()
+
+
+def loads(text: str, name: str = "<string>") -> Program:
+    """Check a spec given as text; raise :class:`SpecError` with every error if it has any."""
+    model, diagnostics = analyse(text, name)
+    if model is None:
+        raise SpecError(diagnostics, text)
+    return Program(model, [d for d in diagnostics if not d.is_error])
+
+
+def read_source(path: Union[str, os.PathLike]) -> str:
+    """Read a spec file as UTF-8 text, turning every way of failing into a positioned SpecError."""
+    p = Path(path)
+    name = str(path)
+    whole = Span(1, 1, 1, 2)
+    try:
+        data = p.read_bytes()
+    except FileNotFoundError:
+        raise SpecError([make("E002", "no such file", Span(0, 0, 0, 0), name)]) from None
+    except IsADirectoryError:
+        raise SpecError([make("E002", "this is a directory, not a spec file", Span(0, 0, 0, 0), name)]) from None
+    except PermissionError:
+        raise SpecError([make("E002", "permission denied", Span(0, 0, 0, 0), name)]) from None
+    except OSError as err:
+        raise SpecError([make("E002", f"cannot read the file: {err.strerror or err}", Span(0, 0, 0, 0), name)]) from None
+    try:
+        text = data.decode("utf-8")
+    except UnicodeDecodeError as err:
+        line = data[: err.start].count(b"\n") + 1
+        col = err.start - (data.rfind(b"\n", 0, err.start) + 1) + 1
+        raise SpecError([make("E002", f"the file is not UTF-8 text (byte 0x{data[err.start]:02x} at offset {err.start})",
+                              Span(line, col, line, col + 1), name)]) from None
+    if "\x00" in text:
+        at = text.index("\x00")
+        line = text.count("\n", 0, at) + 1
+        col = at - (text.rfind("\n", 0, at) + 1) + 1
+        raise SpecError([make("E002", "the file contains a NUL byte: it is binary, not a spec", Span(line, col, line, col + 1), name)],
+                        text) from None
+    if not text.strip():
+        raise SpecError([make("E002", "the file is empty", whole, name,
+                              hint="a spec declares a system, its regions, formulas and tasks")], text)
+    return text
+
+
+def load(path: Union[str, os.PathLike]) -> Program:
+    """Read and check a ``.asap`` file; raise :class:`SpecError` with every error if it has any."""
+    return loads(read_source(path), str(path))
+
+
+__all__ = ["Formula", "Task", "Program", "load", "loads", "analyse", "read_source", "math"]

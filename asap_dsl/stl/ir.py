@@ -1,0 +1,201 @@
+"""The formula IR: what a checked formula compiles to, and what the evaluators consume.
+
+The checker turns a formula of the language (names resolved, intervals converted to whole steps,
+regions and comparisons turned into vectorised atoms) into a tree of these frozen nodes. The
+offline evaluator (:mod:`asap_dsl.stl.offline`) and the online monitor
+(:mod:`asap_dsl.stl.online`) work on this tree only, never on source text.
+
+Conventions
+-----------
+* Time is discrete: step indices ``t = 0 .. T-1`` of a trace ``[..., T, n]``.
+* Intervals are in whole steps, ``lo <= hi``; ``hi is None`` means unbounded (``inf``).
+* Future operators look at ``[t + lo, t + hi]``, past operators at ``[t - hi, t - lo]``,
+  both cut at the ends of the trace (an empty window gives ``eventually``/``once`` ``-inf``
+  and ``always``/``historically`` ``+inf``).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Callable, Optional, Union
+
+import numpy as np
+
+#: A vectorised function of states ``[..., n]`` (any leading shape) returning ``[...]``.
+StateFunction = Callable[[np.ndarray], np.ndarray]
+
+
+@dataclass(frozen=True)
+class Interval:
+    """A window ``[lo, hi]`` in whole steps; ``hi=None`` is unbounded."""
+
+    lo: int = 0
+    hi: Optional[int] = None
+
+    def __post_init__(self) -> None:
+        if self.lo < 0 or (self.hi is not None and self.hi < self.lo):
+            raise ValueError(f"invalid interval [{self.lo}, {self.hi}]")
+
+    @property
+    def bounded(self) -> bool:
+        return self.hi is not None
+
+    def __str__(self) -> str:
+        return f"[{self.lo}, {'inf' if self.hi is None else self.hi}]"
+
+
+@dataclass(frozen=True)
+class Atom:
+    """A predicate over one state.
+
+    ``robustness(states)`` gives the signed margin (positive inside), ``satisfied(states)`` the
+    exact Boolean value (strict or non-strict comparison as written). Both take ``[..., n]`` and
+    return ``[...]``. ``text`` is the source form, for messages and ``asapc show``.
+    """
+
+    text: str
+    robustness: StateFunction = field(compare=False)
+    satisfied: Callable[[np.ndarray], np.ndarray] = field(compare=False)
+    # Bounds of the robustness over the state space (interval analysis), (-inf, inf) if unknown.
+    bounds: tuple[float, float] = (-np.inf, np.inf)
+
+
+@dataclass(frozen=True)
+class Const:
+    """``true`` (robustness +inf) or ``false`` (-inf)."""
+
+    value: bool
+
+
+@dataclass(frozen=True)
+class Not:
+    arg: "Formula"
+
+
+@dataclass(frozen=True)
+class And:
+    left: "Formula"
+    right: "Formula"
+
+
+@dataclass(frozen=True)
+class Or:
+    left: "Formula"
+    right: "Formula"
+
+
+@dataclass(frozen=True)
+class Implies:
+    left: "Formula"
+    right: "Formula"
+
+
+@dataclass(frozen=True)
+class Always:
+    """Future: minimum over ``[t + lo, t + hi]``."""
+
+    interval: Interval
+    arg: "Formula"
+
+
+@dataclass(frozen=True)
+class Eventually:
+    """Future: maximum over ``[t + lo, t + hi]``."""
+
+    interval: Interval
+    arg: "Formula"
+
+
+@dataclass(frozen=True)
+class Historically:
+    """Past: minimum over ``[t - hi, t - lo]``."""
+
+    interval: Interval
+    arg: "Formula"
+
+
+@dataclass(frozen=True)
+class Once:
+    """Past: maximum over ``[t - hi, t - lo]``."""
+
+    interval: Interval
+    arg: "Formula"
+
+
+@dataclass(frozen=True)
+class Until:
+    """Future: ``left`` holds until ``right`` holds at some ``t' in [t + lo, t + hi]``."""
+
+    interval: Interval
+    left: "Formula"
+    right: "Formula"
+
+
+@dataclass(frozen=True)
+class Since:
+    """Past: ``right`` held at some ``t' in [t - hi, t - lo]`` and ``left`` ever since."""
+
+    interval: Interval
+    left: "Formula"
+    right: "Formula"
+
+
+Formula = Union[Atom, Const, Not, And, Or, Implies, Always, Eventually, Historically, Once, Until, Since]
+
+FUTURE_OPERATORS = (Always, Eventually, Until)
+PAST_OPERATORS = (Historically, Once, Since)
+UNARY_TEMPORAL = (Always, Eventually, Historically, Once)
+BINARY_TEMPORAL = (Until, Since)
+
+
+def children(node: Formula) -> tuple[Formula, ...]:
+    """The direct sub-formulas of ``node``."""
+    if isinstance(node, (Atom, Const)):
+        return ()
+    if isinstance(node, (Not, Always, Eventually, Historically, Once)):
+        return (node.arg,)
+    return (node.left, node.right)
+
+
+def is_causal(node: Formula) -> bool:
+    """True when no future operator occurs: the value at t depends on steps <= t only."""
+    return not isinstance(node, FUTURE_OPERATORS) and all(is_causal(c) for c in children(node))
+
+
+def horizon(node: Formula) -> float:
+    """How many steps past ``t`` the value at ``t`` may look (``inf`` if unbounded)."""
+    own = 0.0
+    if isinstance(node, FUTURE_OPERATORS):
+        own = float("inf") if node.interval.hi is None else float(node.interval.hi)
+    return own + max((horizon(c) for c in children(node)), default=0.0)
+
+
+def history(node: Formula) -> float:
+    """How many steps before ``t`` the value at ``t`` may look (``inf`` if unbounded)."""
+    own = 0.0
+    if isinstance(node, PAST_OPERATORS):
+        own = float("inf") if node.interval.hi is None else float(node.interval.hi)
+    return own + max((history(c) for c in children(node)), default=0.0)
+
+
+def to_text(node: Formula) -> str:
+    """A fully parenthesised rendering, for messages and ``asapc show``."""
+    if isinstance(node, Atom):
+        return node.text
+    if isinstance(node, Const):
+        return "true" if node.value else "false"
+    if isinstance(node, Not):
+        return f"not {_wrap(node.arg)}"
+    if isinstance(node, (And, Or, Implies)):
+        op = {And: "and", Or: "or", Implies: "->"}[type(node)]
+        return f"{_wrap(node.left)} {op} {_wrap(node.right)}"
+    if isinstance(node, UNARY_TEMPORAL):
+        name = type(node).__name__.lower()
+        return f"{name}{node.interval} {_wrap(node.arg)}"
+    name = type(node).__name__.lower()
+    return f"{_wrap(node.left)} {name}{node.interval} {_wrap(node.right)}"
+
+
+def _wrap(node: Formula) -> str:
+    text = to_text(node)
+    return text if isinstance(node, (Atom, Const)) else f"({text})"
