@@ -859,8 +859,10 @@ class Checker:
             model = self.check_task(t)
             if model is not None:
                 tasks[t.name] = model
-        if self.d.has_errors or system is None:
+        if system is None:
             return None
+        # With errors elsewhere the model is partial (broken parts left out); lint rules still run
+        # on it so that a file's problems are all reported at once, and the caller discards it.
         return ProgramModel(self.m.file, self.source, system, dict(self.regions), dict(self.formulas), tasks,
                             frozenset(self.used), dict(self.kinds))
 
@@ -908,5 +910,8 @@ def _context_hint(context: str) -> Optional[str]:
 
 
 def check(module: ast.Module, source: str, diag: Collector) -> Optional[ProgramModel]:
-    """Check a parsed module; diagnostics go to ``diag``; the model is None if there are errors."""
+    """Check a parsed module; diagnostics go to ``diag``.
+
+    The model is None when there is no usable system; it is partial when ``diag`` has errors.
+    """
     return Checker(module, source, diag).run()

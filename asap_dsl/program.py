@@ -168,7 +168,7 @@ def analyse(text: str, name: str = "<string>") -> tuple[Optional[ProgramModel], 
     module, structural = parser.parse(text, name)
     diag = Collector(name, list(structural))
     model = checker.check(module, text, diag)
-    if model is not None and not diag.has_errors:
+    if model is not None:
         lint.lint(model, diag)
     if diag.has_errors:
         model = None

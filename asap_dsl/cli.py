@@ -1,0 +1,292 @@
+"""``asapc``: the command line. I/O lives here; everything it reports is computed elsewhere.
+
+Exit status: 0 success, 1 a problem in the user's spec or data, 2 a usage error (bad flags),
+70 an internal error (a bug of ours, reported in one line; ``ASAPC_DEBUG=1`` shows the trace).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import sys
+from typing import Optional, Sequence
+
+from . import __version__
+from .diagnostics import Diagnostic, SpecError, format_diagnostic
+from .program import Program, analyse, loads, read_source
+from .stl import ir
+
+
+# ---------------------------------------------------------------------------------------- lint
+def _lint_file(path: str) -> tuple[list[Diagnostic], Optional[str], Optional[Program]]:
+    try:
+        text = read_source(path)
+    except SpecError as err:
+        return err.diagnostics, err.source, None
+    try:
+        model, diagnostics = analyse(text, path)
+    except SpecError as err:  # syntax errors
+        return err.diagnostics, text, None
+    prog = Program(model, [d for d in diagnostics if not d.is_error]) if model is not None else None
+    return diagnostics, text, prog
+
+
+def cmd_lint(args: argparse.Namespace) -> int:
+    all_diags: list[Diagnostic] = []
+    sources: dict[str, Optional[str]] = {}
+    for path in args.files:
+        diags, source, prog = _lint_file(path)
+        if args.deep and prog is not None:
+            diags = diags + _deep_checks(prog, args)
+        all_diags += diags
+        sources[path] = source
+    errors = sum(d.is_error for d in all_diags)
+    warnings = len(all_diags) - errors
+    if args.format == "json":
+        print(json.dumps({"files": args.files, "errors": errors, "warnings": warnings,
+                          "diagnostics": [d.as_dict() for d in all_diags]}, indent=2))
+    else:
+        for d in all_diags:
+            print(format_diagnostic(d, sources.get(d.file)))
+        n = len(args.files)
+        print(f"{n} file{'s' if n != 1 else ''} checked: {errors} error{'s' if errors != 1 else ''}, "
+              f"{warnings} warning{'s' if warnings != 1 else ''}")
+    if errors or (args.strict and warnings):
+        return 1
+    return 0
+
+
+def _deep_checks(prog: Program, args: argparse.Namespace) -> list[Diagnostic]:
+    """``lint --deep``: sample initial states and ask the oracle whether the deadline is feasible."""
+    from .diagnostics import make
+
+    if prog.system.kind == "simulator":
+        return []
+    try:
+        from .backends.oracle import deadline_infeasible
+    except ImportError:  # pragma: no cover - the oracle ships with the package
+        return []
+    out = []
+    for name in prog.tasks:
+        task = prog.model.tasks[name]
+        try:
+            bad = deadline_infeasible(prog, name, samples=args.samples, seed=0)
+        except ValueError:
+            continue  # a goal the oracle cannot express: nothing to say here
+        if bad:
+            state, reason = bad[0]
+            shown = ", ".join(f"{n}={v:.3g}" for n, v in zip(prog.system.state_names, state))
+            out.append(make("W208", f"{len(bad)} of {args.samples} sampled initial states of task '{name}' cannot fulfil "
+                            f"`asap` within the deadline of {task.deadline} steps (e.g. {shown}: {reason})",
+                            task.clause_spans["deadline"], prog.file,
+                            hint="enlarge the deadline or the action bounds, or shrink the init box"))
+    return out
+
+
+# ---------------------------------------------------------------------------------------- show
+def _fmt(x: float) -> str:
+    if isinstance(x, float) and math.isinf(x):
+        return "inf" if x > 0 else "-inf"
+    return f"{x:.6g}"
+
+
+def _table(rows: list[list[str]], header: list[str]) -> list[str]:
+    widths = [max(len(str(r[i])) for r in [header] + rows) for i in range(len(header))]
+    line = lambda r: "  " + "  ".join(str(c).ljust(w) for c, w in zip(r, widths)).rstrip()  # noqa: E731
+    return [line(header), "  " + "  ".join("-" * w for w in widths)] + [line(r) for r in rows]
+
+
+def show_data(prog: Program, only_task: Optional[str] = None) -> dict:
+    """Everything ``asapc show`` prints, as plain data (also its JSON output)."""
+    sys_ = prog.system
+    integ = sys_.integrator
+    data = {
+        "file": prog.file,
+        "system": {
+            "name": sys_.name,
+            "dynamics": sys_.kind if sys_.kind != "simulator" else f'simulator "{sys_.simulator}"',
+            "integrator": None if sys_.kind != "ode" else (integ.method if integ.method == "exact" else f"{integ.method}(substeps = {integ.substeps})"),
+            "dt": sys_.dt,
+            "constants": dict(sys_.consts),
+            "states": [{"name": s.name, "space": [s.low, s.high], "init": [s.init_low, s.init_high]} for s in sys_.states],
+            "actions": [{"name": a.name, "bounds": [a.low, a.high]} for a in sys_.actions],
+            "lets": {k: prog.model.declared[k][1].line for k in sys_.lets},
+        },
+        "regions": {n: r.describe() for n, r in prog.model.regions.items()},
+        "formulas": {n: ir.to_text(f.ir) for n, f in prog.model.formulas.items()},
+        "tasks": {},
+    }
+    for name in prog.tasks:
+        if only_task and name != only_task:
+            continue
+        t = prog.model.tasks[name]
+        lo, hi = t.rho_bounds
+        data["tasks"][name] = {
+            "asap": ir.to_text(t.asap),
+            "avoid": None if t.avoid is None else ir.to_text(t.avoid),
+            "specification": ir.to_text(t.spec),
+            "horizon_steps": ir.horizon(t.spec),
+            "deadline_steps": t.deadline,
+            "deadline_seconds": t.deadline * sys_.dt,
+            "tolerances": list(t.tolerances),
+            "episode": list(t.episode),
+            "reward": t.reward.kind + ("" if not t.reward.params else "(" + ", ".join(f"{k} = {_fmt(v)}" for k, v in t.reward.params.items()) + ")"),
+            "observe": list(t.observe),
+            "rho_bounds": [lo, hi],
+            "rho_scale": t.rho_scale if t.r_sat is None else 1.0,
+            "r_sat": t.r_sat_value,
+            "r_sat_mode": "auto" if t.r_sat is None else "given",
+            "r_sat_bound": (hi * t.rho_scale + t.k_max) if t.r_sat is None else t.r_sat_bound,
+            "train": dict(t.train),
+        }
+    return data
+
+
+def cmd_show(args: argparse.Namespace) -> int:
+    prog = _load(args.file)
+    if args.task and args.task not in prog.tasks:
+        raise _UsageError(_unknown_task(args.task, prog))
+    data = show_data(prog, args.task)
+    if args.format == "json":
+        print(json.dumps(data, indent=2, default=_json_default))
+        return 0
+    s = data["system"]
+    out = [f"{prog.file}", "", f"system {s['name']}: {s['dynamics']}" + (f", integrator {s['integrator']}" if s["integrator"] else "")
+           + f", dt = {_fmt(s['dt'])} s"]
+    if s["constants"]:
+        out.append("  constants: " + ", ".join(f"{k} = {_fmt(v)}" for k, v in s["constants"].items()))
+    out.append("")
+    out += _table([[x["name"], f"[{_fmt(x['space'][0])}, {_fmt(x['space'][1])}]", f"[{_fmt(x['init'][0])}, {_fmt(x['init'][1])}]"]
+                   for x in s["states"]], ["state", "state space", "init"])
+    if s["actions"]:
+        out.append("")
+        out += _table([[a["name"], f"[{_fmt(a['bounds'][0])}, {_fmt(a['bounds'][1])}]"] for a in s["actions"]], ["action", "bounds"])
+    if s["lets"]:
+        out.append("  lets: " + ", ".join(s["lets"]))
+    if data["regions"]:
+        out += ["", "regions:"] + [f"  {n} = {d}" for n, d in data["regions"].items()]
+    if data["formulas"]:
+        out += ["", "formulas:"] + [f"  {n} = {d}" for n, d in data["formulas"].items()]
+    for name, t in data["tasks"].items():
+        lo, hi = t["rho_bounds"]
+        out += ["", f"task {name}:",
+                f"  asap           {t['asap']}",
+                f"  avoid          {t['avoid'] or '(none)'}",
+                f"  specification  {t['specification']}",
+                f"  horizon        {_fmt(t['horizon_steps'])} steps",
+                f"  deadline       {t['deadline_steps']} steps ({_fmt(t['deadline_seconds'])} s)",
+                f"  tolerances     {', '.join(map(str, t['tolerances']))}",
+                f"  episode        {t['episode'][0]}..{t['episode'][1]} steps",
+                f"  reward         {t['reward']}",
+                f"  observe        {', '.join(t['observe'])}",
+                f"  rho bounds     [{_fmt(lo)}, {_fmt(hi)}]  (robustness of asap over the state space, interval analysis)"]
+        if t["r_sat_mode"] == "auto":
+            out.append(f"  r_sat          {_fmt(t['r_sat'])}  (auto: rho scaled by {_fmt(t['rho_scale'])} = 1/(rho_max - rho_min); "
+                       f"theorem's bound rho_max' + k_max = {_fmt(t['r_sat_bound'])})")
+        else:
+            out.append(f"  r_sat          {_fmt(t['r_sat'])}  (given; theorem's bound {_fmt(t['r_sat_bound'])})")
+        if t["train"]:
+            out.append("  train          " + ", ".join(f"{k} = {v}" for k, v in t["train"].items()))
+    for w in prog.warnings:
+        out.append("")
+        out.append(format_diagnostic(w, prog.source))
+    print("\n".join(out))
+    return 0
+
+
+def _json_default(x):
+    if isinstance(x, float):
+        return str(x)
+    return str(x)
+
+
+class _UsageError(Exception):
+    """A flag or argument that names something the spec does not have (exit 2)."""
+
+
+def _unknown_task(name: str, prog: Program) -> str:
+    from .diagnostics import closest
+
+    sug = closest(name, prog.tasks)
+    return f"no task named '{name}' in {prog.file}" + (f"; did you mean '{sug}'?" if sug else f"; it has: {', '.join(prog.tasks)}")
+
+
+def _load(path: str) -> Program:
+    return loads(read_source(path), path)
+
+
+# ---------------------------------------------------------------------------------------- main
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="asapc", description="Check, compile and solve .asap specifications of "
+                                "control tasks to fulfil as soon as possible.")
+    p.add_argument("--version", action="version", version=f"asapc {__version__}")
+    sub = p.add_subparsers(dest="command", metavar="COMMAND")
+    sub.required = True
+
+    lint = sub.add_parser("lint", help="check spec files and report every problem")
+    lint.add_argument("files", nargs="+", metavar="FILE")
+    lint.add_argument("--format", choices=("text", "json"), default="text")
+    lint.add_argument("--strict", action="store_true", help="warnings fail too (exit 1)")
+    lint.add_argument("--deep", action="store_true", help="also sample initial states and check with the oracle "
+                      "that the deadline is feasible (ode and map systems)")
+    lint.add_argument("--samples", type=_positive_int, default=16, help="initial states sampled by --deep (default 16)")
+    lint.set_defaults(func=cmd_lint)
+
+    show = sub.add_parser("show", help="print the compiled specification: variables, regions, tasks, bounds, r_sat")
+    show.add_argument("file", metavar="FILE")
+    show.add_argument("--task", help="show only this task")
+    show.add_argument("--format", choices=("text", "json"), default="text")
+    show.set_defaults(func=cmd_show)
+
+    try:
+        from .backends import oracle_cli
+    except ImportError:  # pragma: no cover - present in every install
+        oracle_cli = None
+    if oracle_cli is not None:
+        oracle = sub.add_parser("oracle", help="minimum steps per initial state (CasADi) and the best success rate "
+                                "any policy could reach")
+        oracle_cli.add_oracle_arguments(oracle)
+        oracle.set_defaults(func=oracle_cli.oracle_command)
+    return p
+
+
+def _positive_int(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a whole number, got '{text}'") from None
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"expected a positive number, got {value}")
+    return value
+
+
+def main(argv: Optional[Sequence[str]] = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    try:
+        return int(args.func(args) or 0)
+    except SpecError as err:
+        print(err.report(), file=sys.stderr)
+        n = len(err.errors)
+        print(f"{n} error{'s' if n != 1 else ''}", file=sys.stderr)
+        return 1
+    except _UsageError as err:
+        parser.exit(2, f"asapc: error: {err}\n")
+    except KeyboardInterrupt:
+        print("interrupted", file=sys.stderr)
+        return 130
+    except BrokenPipeError:
+        return 0
+    except Exception as err:  # a bug of ours: one line, the trace on request
+        if os.environ.get("ASAPC_DEBUG"):
+            raise
+        print(f"asapc: internal error: {type(err).__name__}: {err} (set ASAPC_DEBUG=1 for the trace; please report it)",
+              file=sys.stderr)
+        return 70
+    return 0
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())
