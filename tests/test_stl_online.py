@@ -1,0 +1,181 @@
+"""Online monitors equal the offline evaluator at every step, with per-entry resets."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from asap_dsl.stl import ir, offline, online
+from stl_reference import atoms, examples, formulas, intervals, make_atom, traces
+
+FUZZ = settings(max_examples=examples(150), deadline=None,
+                suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large])
+
+X_GT_0 = make_atom(0, ">", 0.0)
+Y_GT_0 = make_atom(1, ">", 0.0)
+
+
+def run_with_resets(mon, batch, resets, prefix: bool, node):
+    """Feed ``batch [B, T, n]`` step by step, resetting entries where ``resets[:, t]`` is True
+    before step t; compare with the offline evaluator on each entry's current segment."""
+    B, T, _ = batch.shape
+    seg_start = np.zeros(B, dtype=int)
+    for t in range(T):
+        if resets[:, t].any():
+            mon.reset(resets[:, t])
+            seg_start[resets[:, t]] = t
+        out = mon.update(batch[:, t])
+        assert out.dtype == np.float64 and out.shape == (B,)
+        for b in range(B):
+            seg = batch[b, seg_start[b] : t + 1]
+            k = 0 if prefix else t - seg_start[b]
+            want_r = offline.robustness(node, seg)[k]
+            want_s = offline.satisfied(node, seg)[k]
+            assert out[b] == want_r, (ir.to_text(node), b, t, out[b], want_r)
+            assert mon.satisfied[b] == want_s, (ir.to_text(node), b, t)
+            assert mon.t[b] == t - seg_start[b]
+
+
+# ---- Monitor --------------------------------------------------------------------------------
+
+@FUZZ
+@given(formulas(causal=True), traces(batch=3, max_T=16))
+def test_monitor_equals_offline_at_every_step(node, batch):
+    B, T, _ = batch.shape
+    mon = online.Monitor(node, B)
+    rob, sat = offline.robustness(node, batch), offline.satisfied(node, batch)
+    for t in range(T):
+        assert np.array_equal(mon.update(batch[:, t]), rob[:, t]), (ir.to_text(node), t)
+        assert np.array_equal(mon.satisfied, sat[:, t]), (ir.to_text(node), t)
+        assert np.array_equal(mon.robustness, rob[:, t])
+
+
+@FUZZ
+@given(formulas(causal=True, max_leaves=4), traces(batch=3, min_T=4, max_T=20), st.data())
+def test_monitor_with_per_entry_resets(node, batch, data):
+    B, T, _ = batch.shape
+    resets = np.array(data.draw(st.lists(st.booleans(), min_size=B * T, max_size=B * T))).reshape(B, T)
+    resets &= np.random.default_rng(0).random((B, T)) < 0.3
+    run_with_resets(online.Monitor(node, B), batch, resets, prefix=False, node=node)
+
+
+def test_long_bounded_windows_and_resets():
+    rng = np.random.default_rng(3)
+    B, T = 4, 120
+    batch = rng.normal(size=(B, T, 2))
+    node = ir.And(ir.Historically(ir.Interval(3, 17), X_GT_0),
+                  ir.Since(ir.Interval(2, 30), Y_GT_0, ir.Once(ir.Interval(5, None), X_GT_0)))
+    resets = rng.random((B, T)) < 0.03
+    run_with_resets(online.Monitor(node, B), batch, resets, prefix=False, node=node)
+
+
+# ---- PrefixMonitor --------------------------------------------------------------------------
+
+def bounded_intervals():
+    return intervals(allow_unbounded=False)
+
+
+@st.composite
+def prefix_formulas(draw):
+    causal = formulas(causal=True, max_leaves=3)
+    leaf = st.one_of(
+        st.builds(ir.Eventually, bounded_intervals(), causal),
+        st.builds(ir.Always, bounded_intervals(), causal),
+        st.builds(ir.Until, bounded_intervals(), causal, causal),
+        st.builds(ir.Eventually, intervals(), atoms()),
+        causal,
+    )
+    return draw(st.recursive(leaf, lambda c: st.one_of(
+        st.builds(ir.And, c, c), st.builds(ir.Or, c, c), st.builds(ir.Not, c),
+        st.builds(ir.Implies, c, c)), max_leaves=3))
+
+
+@FUZZ
+@given(prefix_formulas(), traces(batch=3, max_T=14), st.data())
+def test_prefix_monitor_equals_offline_on_every_prefix(node, batch, data):
+    B, T, _ = batch.shape
+    resets = np.zeros((B, T), dtype=bool)
+    if data.draw(st.booleans()):
+        resets = np.random.default_rng(data.draw(st.integers(0, 99))).random((B, T)) < 0.2
+    run_with_resets(online.PrefixMonitor(node, B), batch, resets, prefix=True, node=node)
+
+
+def test_task_specification_rho():
+    """The rho reward's formula: eventually[0, D] asap and always[0, D] not avoid."""
+    D = 6
+    asap = ir.Historically(ir.Interval(0, 1), X_GT_0)
+    avoid = Y_GT_0
+    spec = ir.And(ir.Eventually(ir.Interval(0, D), asap), ir.Always(ir.Interval(0, D), ir.Not(avoid)))
+    mon = online.monitor_for(spec, 2)
+    assert isinstance(mon, online.PrefixMonitor)
+    x0 = np.array([[-3, -1, 2, 1, 4, -1, 5, 6, 7, 9], [-1, -1, -1, -1, -1, -1, -1, -1, -1, 8]], float)
+    x1 = np.array([[-2, -3, -1, -4, -5, -6, -7, -8, 3, 9], [-1] * 10], float)
+    batch = np.stack([x0, x1], axis=-1)
+    got = np.array([mon.update(batch[:, t]) for t in range(10)]).T
+    # Entry 0, by hand: asap ρ = min(x0[t-1], x0[t]); avoid ρ = x1, so not avoid = -x1.
+    #   F part: max over t' <= min(t, D) of asap: -3, -3, -1, 1, 1, 1, 1 and frozen after D = 6.
+    #   G part: min over t' <= min(t, D) of -x1: 2, 2, 1, 1, 1, 1, 1, then frozen.
+    assert got[0].tolist() == [-3, -3, -1, 1, 1, 1, 1, 1, 1, 1]
+    assert got[1].tolist() == [-1] * 10
+    for t in range(10):
+        assert np.array_equal(got[:, t], offline.robustness(spec, batch[:, : t + 1])[:, 0])
+
+
+# ---- refusals and bad input -----------------------------------------------------------------
+
+def test_future_formula_refused_by_monitor_naming_the_operator():
+    f = ir.And(X_GT_0, ir.Eventually(ir.Interval(0, 3), Y_GT_0))
+    with pytest.raises(ValueError, match=r"eventually\[0, 3\]"):
+        online.Monitor(f, 2)
+
+
+def test_nested_future_refused_by_prefix_monitor():
+    f = ir.Eventually(ir.Interval(0, 3), ir.Always(ir.Interval(1, 2), X_GT_0))
+    with pytest.raises(ValueError, match=r"always\[1, 2\]"):
+        online.monitor_for(f, 2)
+    g = ir.Once(ir.Interval(0, 3), ir.Eventually(ir.Interval(0, 1), X_GT_0))
+    with pytest.raises(ValueError, match=r"eventually\[0, 1\].*once"):
+        online.PrefixMonitor(g, 2)
+
+
+def test_monitor_for_picks_the_right_class():
+    assert type(online.monitor_for(ir.Once(ir.Interval(0, None), X_GT_0), 3)) is online.Monitor
+    assert type(online.monitor_for(ir.Always(ir.Interval(0, 3), X_GT_0), 3)) is online.PrefixMonitor
+
+
+def test_bad_states_and_masks():
+    mon = online.Monitor(ir.Once(ir.Interval(0, 2), X_GT_0), 3, n_state=2)
+    with pytest.raises(ValueError, match=r"shape \[3, n_state\]"):
+        mon.update(np.zeros((2, 2)))
+    with pytest.raises(ValueError, match="expected 2"):
+        mon.update(np.zeros((3, 4)))
+    bad = np.zeros((3, 2))
+    bad[1, 0] = np.nan
+    with pytest.raises(ValueError, match="batch index 1"):
+        mon.update(bad)
+    with pytest.raises(ValueError, match="bool array"):
+        mon.reset(np.array([1, 0, 1]))
+    with pytest.raises(ValueError, match="positive integer"):
+        online.Monitor(X_GT_0, 0)
+
+
+def test_satisfaction_can_be_turned_off():
+    mon = online.Monitor(X_GT_0, 2, satisfaction=False)
+    assert mon.update(np.array([[1.0, 0.0], [-2.0, 0.0]])).tolist() == [1.0, -2.0]
+    with pytest.raises(ValueError, match="satisfaction=False"):
+        mon.satisfied
+
+
+def test_reset_all_and_step_counters():
+    mon = online.Monitor(ir.Historically(ir.Interval(0, None), X_GT_0), 2)
+    assert mon.t.tolist() == [-1, -1]
+    mon.update(np.array([[-5.0, 0], [1.0, 0]]))
+    mon.update(np.array([[2.0, 0], [3.0, 0]]))
+    assert mon.robustness.tolist() == [-5.0, 1.0] and mon.t.tolist() == [1, 1]
+    mon.reset(np.array([True, False]))
+    assert mon.update(np.array([[2.0, 0], [0.5, 0]])).tolist() == [2.0, 0.5]
+    assert mon.t.tolist() == [0, 2]
+    mon.reset()
+    assert mon.update(np.array([[7.0, 0], [8.0, 0]])).tolist() == [7.0, 8.0]
