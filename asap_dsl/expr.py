@@ -104,7 +104,7 @@ class _Gen:
 
     def expr(self, e: ast.Expr) -> str:
         if isinstance(e, ast.Number):
-            return repr(float(e.value))
+            return _literal(e.value)
         if isinstance(e, ast.Infinity):
             return "_INF"
         if isinstance(e, ast.Name):
@@ -123,7 +123,7 @@ class _Gen:
 
     def name(self, n: str) -> str:
         if n in self.sym.consts:
-            return repr(float(self.sym.consts[n]))
+            return _literal(self.sym.consts[n])
         if n in BUILTIN_CONSTANTS:
             return repr(BUILTIN_CONSTANTS[n])
         if n in self.sym.states:
@@ -140,6 +140,16 @@ class _Gen:
         raise KeyError(n)
 
 
+def _literal(value: float) -> str:
+    """A float as Python source; ``1e400`` overflows to inf, which ``repr`` would print as a name."""
+    v = float(value)
+    if math.isfinite(v):
+        return repr(v)
+    if math.isnan(v):
+        return "_NAN"
+    return "_INF" if v > 0 else "(-_INF)"
+
+
 def compile_function(exprs: Sequence[ast.Expr], symbols: Symbols, backend: SimpleNamespace = NUMPY) -> Callable:
     """Compile ``exprs`` to ``f(S, A) -> tuple`` for ``backend`` (numpy, casadi or interval)."""
     gen = _Gen(symbols)
@@ -151,7 +161,7 @@ def compile_function(exprs: Sequence[ast.Expr], symbols: Symbols, backend: Simpl
         lines.append(f"    _let_{n} = {let_gen.expr(symbols.lets[n])}")
     lines.append(f"    return ({', '.join(bodies)}{',' if len(bodies) == 1 else ''})")
     source = "\n".join(lines)
-    namespace = {"_F": backend, "_INF": math.inf}
+    namespace = {"_F": backend, "_INF": math.inf, "_NAN": math.nan}
     exec(compile(source, "<asap expression>", "exec"), namespace)  # noqa: S102 - our own generated code
     fn = namespace["_compiled"]
     fn.source = source  # type: ignore[attr-defined]

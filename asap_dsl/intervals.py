@@ -82,7 +82,11 @@ class Interval:
             if self.hi <= 0:
                 return Interval(self.hi ** n, self.lo ** n)
             return Interval(0.0, max(self.lo ** n, self.hi ** n))
-        # Real exponent: defined for a positive base only; exp(o * log(self)).
+        # Real exponent: defined for a positive base only; exp(o * log(self)). A negative base
+        # with an exponent that varies over an interval can meet whole exponents (x^y with y = 1, 2),
+        # where the power is real and of either sign: nothing narrower than the line is sound.
+        if self.lo < 0 and o.lo < o.hi:
+            return Interval(-math.inf, math.inf)
         return exp(o * log(self))
 
     def __rpow__(self, o):

@@ -50,8 +50,29 @@ def _grammar_text() -> str:
 
 
 @functools.lru_cache(maxsize=None)
+def keywords() -> dict[str, str]:
+    """Reserved words of the language (every keyword of the grammar) -> their terminal names."""
+    return {t.pattern.value: t.name for t in _lark().terminals
+            if isinstance(t.pattern, lark.lexer.PatternStr) and t.pattern.value.isidentifier()}
+
+
+def _reserve_keywords(tok: Token) -> Token:
+    # The contextual lexer reads a keyword as a NAME wherever the keyword itself cannot stand
+    # (`const G = 9.81`, `state task in ...`). Keywords are reserved: give the token its keyword
+    # type back, so that the parser reports "'G' is a reserved word" instead of accepting a name
+    # that is unusable elsewhere.
+    kind = keywords().get(tok.value)
+    if kind is not None:
+        tok.type = kind
+    return tok
+
+
+@functools.lru_cache(maxsize=None)
 def _lark() -> lark.Lark:
-    return lark.Lark(_grammar_text(), parser="lalr", propagate_positions=True, maybe_placeholders=True)
+    # cache=True keeps the built LALR tables on disk, keyed by the grammar and the options: a cold
+    # `asapc lint` then loads them instead of rebuilding them.
+    return lark.Lark(_grammar_text(), parser="lalr", propagate_positions=True, maybe_placeholders=True,
+                     lexer_callbacks={"NAME": _reserve_keywords}, cache=True)
 
 
 @functools.lru_cache(maxsize=None)
@@ -92,7 +113,7 @@ def _describe_token(tok: Token) -> str:
         return f"number {tok}"
     if tok.type == "STRING":
         return f"string {tok}"
-    if tok.isalpha():
+    if tok.isidentifier():
         return f"keyword '{tok}'"
     return f"'{tok}'"
 
@@ -238,6 +259,8 @@ class _Builder(Transformer):
         return ast.IntervalSyntax(lo, hi, _span(meta))
 
     def duration(self, meta, children):
+        if not children:  # the keyword `inf` is filtered out of the tree
+            return ast.Duration(float("inf"), "steps", _span(meta))
         tok = children[0]
         span = _span_of_token(tok)
         if tok.type == "INF":

@@ -1,0 +1,86 @@
+"""Shared fixtures for the front-end tests: the repository root, the specs, LANGUAGE.md and
+a small valid system to build snippets on. ``ASAP_FUZZ_EXAMPLES`` sets the fuzz volume."""
+
+from __future__ import annotations
+
+import os
+import re
+from pathlib import Path
+
+import pytest
+
+import asap_dsl
+from asap_dsl.program import analyse
+
+ROOT = Path(__file__).resolve().parent.parent
+SPECS = sorted((ROOT / "specs").glob("*.asap"))
+LANGUAGE_MD = Path(os.environ.get("ASAP_LANGUAGE_MD", ROOT.parent / "shared" / "design" / "LANGUAGE.md"))
+DOCS = ROOT / "docs" / "language.md"
+
+#: Hypothesis examples per fuzz test; ``ASAP_FUZZ_EXAMPLES`` overrides the defaults.
+FUZZ_EXAMPLES = int(os.environ.get("ASAP_FUZZ_EXAMPLES", "0") or 0)
+
+
+def fuzz_examples(default: int) -> int:
+    return FUZZ_EXAMPLES or default
+
+
+# A small valid file, one item per line so that tests can point at line:col.
+BASE = """\
+system Plant {
+  state x in [-5, 5]
+  state y in [-5, 5]
+  action u in [-1, 1]
+  dt = 0.1
+  ode {
+    x' = y
+    y' = u
+  }
+}
+region goal = ball([1, 0], 0.5)
+region unsafe = ball([-1, 0], 0.2)
+task t {
+  asap in goal
+  avoid in unsafe
+  deadline 30
+}
+"""
+
+
+def language_blocks() -> list[str]:
+    """The fenced code blocks of LANGUAGE.md, in order."""
+    text = LANGUAGE_MD.read_text(encoding="utf-8")
+    return re.findall(r"^```[a-z]*\n(.*?)^```", text, re.S | re.M)
+
+
+def diagnostics(src: str, name: str = "<string>"):
+    """Every diagnostic of ``src`` (errors and warnings), sorted."""
+    try:
+        _, diags = analyse(src, name)
+    except asap_dsl.SpecError as err:  # syntax errors are raised by the parser
+        diags = err.diagnostics
+    return diags
+
+
+def codes(src: str) -> list[str]:
+    return [d.code for d in diagnostics(src)]
+
+
+def position(src: str, needle: str, nth: int = 0) -> tuple[int, int]:
+    """1-based (line, column) of the ``nth`` occurrence of ``needle`` in ``src``."""
+    at = -1
+    for _ in range(nth + 1):
+        at = src.index(needle, at + 1)
+    line = src.count("\n", 0, at) + 1
+    col = at - (src.rfind("\n", 0, at) + 1) + 1
+    return line, col
+
+
+@pytest.fixture(scope="session")
+def repo_root() -> Path:
+    return ROOT
+
+
+@pytest.fixture(scope="session")
+def spec_paths() -> list[Path]:
+    return SPECS

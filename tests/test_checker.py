@@ -1,0 +1,206 @@
+"""The checker: every error of a file at once and sorted, "did you mean" suggestions, the
+formatted report, and the meaning of what checks (constants, lets, regions, tasks)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+import asap_dsl
+from asap_dsl.diagnostics import format_diagnostic
+from conftest import BASE, diagnostics, position
+from test_parser import lark_internal
+
+
+def edit(src: str, *pairs: str) -> str:
+    for old, new in zip(pairs[::2], pairs[1::2]):
+        assert old in src, old
+        src = src.replace(old, new, 1)
+    return src
+
+
+MANY = """\
+system Plant {
+  const k = 2, m = q + 1
+  state x in [-5, 5] init [-6, 0]
+  state y in [-5, 5]
+  action u in [-1, 1]
+  dt = 0.1
+  ode {
+    x' = y * kk
+    y' = sni(u)
+  }
+}
+region goal = ball([1, 0, 0], 0.5)
+region unsafe = ball([-1, 0], 0.2)
+formula near = x == 1
+task t {
+  asap eventually in goal
+  avoid in unsafee
+  deadline 2.5
+}
+"""
+
+
+def test_all_errors_at_once_sorted_by_position():
+    diags = diagnostics(MANY)
+    errors = [d for d in diags if d.severity == "error"]
+    got = [(d.code, d.line, d.column) for d in errors]
+    assert ("E101", 2, 20) in got        # q
+    assert ("E101", 8, 14) in got        # kk -> k
+    assert ("E118", 9, 10) in got        # sni -> sin
+    assert ("E104", 12, 20) in got       # centre [1, 0, 0]
+    assert ("E115", 14, 18) in got       # ==
+    assert ("E107", 16, 8) in got        # eventually in asap
+    assert ("E101", 17, 12) in got       # unsafee -> unsafe
+    assert ("E106", 18, 12) in got       # deadline 2.5
+    keys = [(d.line, d.column) for d in diags]
+    assert keys == sorted(keys)
+    with pytest.raises(asap_dsl.SpecError) as info:
+        asap_dsl.loads(MANY)
+    assert [(d.code, d.line, d.column) for d in info.value.errors] == got
+
+
+@pytest.mark.parametrize("src, wrong, right", [
+    (edit(BASE, "x' = y", "x' = yy"), "yy", "y"),                                  # state
+    (edit(BASE, "asap in goal", "asap in gool"), "gool", "goal"),                 # region
+    (edit(BASE + "formula reached = in goal\n", "asap in goal", "asap reachd"), "reachd", "reached"),   # formula
+    (edit(BASE, "y' = u", "y' = sqr(u)"), "sqr", "sqrt"),                          # function
+    (edit(BASE, "dt = 0.1", "dt = 0.1\n  integrator rk5"), "rk5", "rk4"),          # integrator
+    (edit(BASE, "dt = 0.1", "dt = 0.1\n  integrator eular"), "eular", "euler"),
+    (edit(BASE, "deadline 30", "deadline 30\n  train { algo = sak }"), "algo = sak", "sac"),  # algo
+    (edit(BASE, "deadline 30", "deadline 30\n  train { algo = ppo, stepz = 10 }"), "stepz", "steps"),  # setting
+    (edit(BASE, "deadline 30", "deadline 30\n  reward distanse"), "reward distanse", "distance"),
+    (edit(BASE, "deadline 30", "deadline 30\n  observe state, tim"), "tim", "time"),
+    (edit(BASE, "dt = 0.1", "dt = 0.1\n  const gain = 2\n  let z = gian * x", "asap in goal", "asap in goal and z > 0"),
+     "gian", "gain"),                                                               # constant
+    (edit(BASE, "ode {\n    x' = y\n    y' = u\n  }", "ode {\n    x' = y\n    yy' = u\n  }"), "yy'", "y"),  # ode target
+])
+def test_did_you_mean(src, wrong, right):
+    diags = [d for d in diagnostics(src) if d.severity == "error" and d.hint and "did you mean" in d.hint]
+    assert len(diags) == 1, diagnostics(src)
+    d = diags[0]
+    assert (d.line, d.column) == position(src, wrong)
+    assert d.hint == f"did you mean '{right}'?"
+    assert not lark_internal(d.message)
+
+
+def test_no_suggestion_for_far_names():
+    src = edit(BASE, "asap in goal", "asap in zzzzzz")
+    [d] = [d for d in diagnostics(src) if d.code == "E101"]
+    assert d.hint is None and d.message == "unknown region 'zzzzzz'"
+
+
+def test_formatted_report_shape():
+    src = edit(BASE, "asap in goal", "asap in gaol")
+    d = [d for d in diagnostics(src, "spec.asap") if d.code == "E101"][0]
+    text = format_diagnostic(d, src).splitlines()
+    assert text[0] == "spec.asap:14:11: error E101 unknown-name: unknown region 'gaol'"
+    assert text[1] == "    14 |   asap in gaol"
+    assert text[2] == "       |           ^^^^"
+    assert text[3] == "       = hint: did you mean 'goal'?"
+    # the caret sits under the span
+    assert text[2].index("^") == text[1].index("gaol")
+
+
+def test_report_with_tabs_and_multiline_span():
+    src = edit(BASE, "  asap in goal", "\tasap in gaol")
+    with pytest.raises(asap_dsl.SpecError) as info:
+        asap_dsl.loads(src)
+    lines = str(info.value).splitlines()
+    i = next(k for k, line in enumerate(lines) if "E101" in line)
+    assert lines[i + 2].index("^") == lines[i + 1].index("gaol")
+
+
+def test_messages_are_plain_words_across_rules():
+    srcs = [MANY, edit(BASE, "[-5, 5]", "[-5 5]"), "system", "task t {", "region r = ball(", "}",
+            edit(BASE, "deadline 30", "deadline"), edit(BASE, "ball([1, 0], 0.5)", "ball([1, 0] 0.5)")]
+    for src in srcs:
+        for d in diagnostics(src):
+            assert not lark_internal(d.message), d.message
+            assert "__ANON" not in (d.hint or "") and "$END" not in (d.hint or ""), d.hint
+
+
+# ---------------------------------------------------------------- meaning
+
+def test_constants_use_earlier_constants_only():
+    prog = asap_dsl.loads(edit(BASE, "dt = 0.1", "const a = 2, b = a * pi\n  dt = b / (20 * pi)",
+                               "y' = u", "y' = a * u"))
+    assert prog.system.consts["b"] == pytest.approx(2 * math.pi)
+    assert prog.system.dt == pytest.approx(0.1)
+    src = edit(BASE, "dt = 0.1", "const b = a * 2, a = 1\n  dt = 0.1", "y' = u", "y' = a * b * u")
+    [d] = [d for d in diagnostics(src) if d.code == "E101"]
+    assert "before it is declared" in d.message and (d.line, d.column) == position(src, "a * 2")
+
+
+def test_lets_in_formulas_and_regions():
+    src = edit(BASE, "dt = 0.1", "let r2 = x^2 + y^2\n  let r = sqrt(r2)\n  dt = 0.1",
+               "region unsafe = ball([-1, 0], 0.2)", "region unsafe = box(r in [0, 0.5])",
+               "asap in goal", "asap in goal and r < 4")
+    prog = asap_dsl.loads(src)
+    states = np.array([[0.3, 0.4], [3.0, 4.0]])
+    np.testing.assert_allclose(prog.regions["unsafe"].robustness(states), [0.0, -4.5])
+    np.testing.assert_array_equal(prog.regions["unsafe"].satisfied(states), [True, False])
+
+
+def test_named_ball_and_box():
+    src = edit(BASE, "ball([1, 0], 0.5)", "ball({y: 1}, 0.5)", "ball([-1, 0], 0.2)", "box(x in [0, 2], y in [-1, 1])")
+    prog = asap_dsl.loads(src)
+    goal, unsafe = prog.regions["goal"], prog.regions["unsafe"]
+    assert goal.coords == ("y",) and goal.centre == (1.0,)
+    s = np.array([[100.0, 1.0], [1.0, 0.0], [3.0, 0.0]])
+    np.testing.assert_allclose(goal.robustness(s), [0.5, -0.5, -0.5])
+    np.testing.assert_allclose(unsafe.robustness(s), [-98.0, 1.0, -1.0])
+    # regions over different variables: overlap is not judged (no W201)
+    assert prog.warnings == []
+
+
+def test_task_spec_and_bounds():
+    prog = asap_dsl.loads(BASE)
+    t = prog.task("t")
+    assert t.deadline == 30 and t.tolerances == (30,) and t.episode == (30, 30)
+    # rho of `in goal` over [-5, 5]^2: r - dist in [0.5 - |(-5,-5)-(1,0)|, 0.5]
+    lo, hi = t.asap.bounds
+    assert hi == pytest.approx(0.5)
+    assert lo == pytest.approx(0.5 - math.hypot(6, 5))
+    # r_sat auto = rho_max' + k_max + 1 with rho scaled by 1 / (rho_max - rho_min)
+    assert t.r_sat_value == pytest.approx(0.5 / (hi - lo) + 30 + 1)
+
+
+def test_task_clause_given_twice_and_unknown_names():
+    src = edit(BASE, "deadline 30", "deadline 30\n  asap in unsafe")
+    d = [d for d in diagnostics(src) if d.code == "E119"]
+    assert d and "twice" in d[0].message
+
+
+def test_future_operator_in_causal_formula_ref():
+    src = BASE + "formula later = eventually[0, 3] in goal\n"
+    src = edit(src, "asap in goal", "asap later")
+    [d] = [d for d in diagnostics(src) if d.code == "E107"]
+    assert (d.line, d.column) == position(src, "later\n")
+    assert "past" in d.hint
+
+
+def test_past_operators_allowed_in_asap_and_avoid():
+    src = edit(BASE, "asap in goal", "asap historically[0, 5] in goal", "avoid in unsafe", "avoid once[0, 2] in unsafe since x > 0")
+    t = asap_dsl.loads(src).task("t")
+    assert t.asap.causal and t.avoid.causal
+
+
+def test_map_and_simulator_systems():
+    src = edit(BASE, "ode {\n    x' = y\n    y' = u\n  }", "map {\n    x = x + 0.1 * y\n    y = y + 0.1 * u\n  }")
+    sys_ = asap_dsl.loads(src).system
+    assert sys_.kind == "map"
+    out = sys_.rhs(np.array([[1.0, 2.0]]), np.array([[3.0]]))
+    np.testing.assert_allclose(out, [[1.2, 2.3]])
+
+
+def test_integrator_settings():
+    prog = asap_dsl.loads(edit(BASE, "dt = 0.1", "dt = 0.1\n  integrator euler(substeps = 10)"))
+    assert (prog.system.integrator.method, prog.system.integrator.substeps) == ("euler", 10)
+    assert asap_dsl.loads(BASE).system.integrator.method == "rk4"
+    assert asap_dsl.loads(BASE).system.integrator.substeps == 4
+    bad = edit(BASE, "dt = 0.1", "dt = 0.1\n  integrator rk4(substeps = 0.5)")
+    assert "E117" in [d.code for d in diagnostics(bad)]
