@@ -29,6 +29,8 @@ _CANONICAL = {
     "since": "since", "S": "since",
 }
 
+_TASK_CLAUSES = ("asap", "avoid", "deadline", "tolerances", "episode", "reward", "r_sat", "observe", "train")
+
 # Plain words for the grammar's named terminals (punctuation and keywords print as themselves).
 _TERMINAL_WORDS = {
     "NAME": "a name",
@@ -155,12 +157,40 @@ def _syntax_diagnostic(err: lark.exceptions.LarkError, text: str, file: str) -> 
             hint = "a '}', ')' or ']' may be missing"
         elif tok == "=" and "PRIME" in err.expected:
             hint = "an ODE equation is written x' = expr"
+        else:
+            hint = _misspelt_keyword_hint(tok, err.expected, text)
         return make("E001", message, span, file, hint)
     if isinstance(err, lark.exceptions.UnexpectedEOF):
         line = len(lines)
         col = len(lines[-1]) + 1 if lines else 1
         return make("E001", "unexpected end of the file", Span(line, col, line, col + 1), file, "a '}', ')' or ']' may be missing")
     return make("E001", "the text could not be parsed", Span(1, 1, 1, 2), file)
+
+
+def _misspelt_keyword_hint(tok: Token, expected: set, text: str) -> Optional[str]:
+    """'did you mean' for a misspelt keyword: the unexpected word itself, or the word before it
+    (`eventualy[0, 3]` reads as a name followed by an unexpected '[')."""
+    from .diagnostics import closest
+
+    words = keywords()
+    if tok.type == "NAME":
+        wanted = [w for w, name in words.items() if name in expected]
+        sug = closest(str(tok), wanted)
+        if sug:
+            return f"did you mean '{sug}'?"
+    pos = getattr(tok, "start_pos", None)
+    if pos is None:
+        return None
+    before = text[:pos].rstrip()
+    i = len(before)
+    while i > 0 and (before[i - 1].isalnum() or before[i - 1] == "_"):
+        i -= 1
+    word = before[i:]
+    if word and word not in words and word[0].isalpha():
+        sug = closest(word, words)
+        if sug:
+            return f"'{word}' is read as a name; did you mean the keyword '{sug}'?"
+    return None
 
 
 def _span(meta: Any) -> Span:
@@ -368,12 +398,17 @@ class _Builder(Transformer):
             self.diag.add("E119", "a number on its own does not belong to any clause", payload.span,
                           hint="only `tolerances` takes a comma-separated list of numbers")
         else:
-            self.diag.add("E119", f"'{payload[0]}' on its own does not belong to any clause", payload[1],
-                          hint="only `observe` takes a comma-separated list of names")
+            from .diagnostics import closest
+
+            clause = closest(payload[0], _TASK_CLAUSES)
+            if clause:
+                self.diag.add("E119", f"'{payload[0]}' is not a task clause", payload[1], hint=f"did you mean '{clause}'?")
+            else:
+                self.diag.add("E119", f"'{payload[0]}' on its own does not belong to any clause", payload[1],
+                              hint="only `observe` takes a comma-separated list of names")
 
     def system(self, meta, children):
         tok = children[0]
-        consts_seen: list = []
 
         def extend_const(out, payload):
             out.append(payload)
@@ -395,7 +430,6 @@ class _Builder(Transformer):
                 dyn.append(it)
             elif isinstance(it, ast.IntegratorDecl):
                 integ.append(it)
-        del consts_seen
         return ast.System(str(tok), tuple(consts), tuple(states), tuple(actions), tuple(lets), tuple(dts),
                           tuple(dyn), tuple(integ), _span(meta), _span_of_token(tok))
 
@@ -481,6 +515,7 @@ class _Builder(Transformer):
         # `tolerances 30, 25` and `observe state, time` continue with comma-separated items.
         merged: list = []
         last_sep = None
+        misplaced_name = False  # `dedline 30`: report the word, not also the number after it
         for item in items:
             if isinstance(item, tuple) and item[0] == "sep":
                 last_sep = item[1]
@@ -490,12 +525,15 @@ class _Builder(Transformer):
                 head = merged[-1] if merged else None
                 if last_sep == "," and isinstance(head, ast.Clause) and head.keyword == want:
                     extend_clause(merged, item[1])
-                else:
+                    misplaced_name = False
+                elif not (misplaced_name and item[0] == "bare_duration" and last_sep is None):
                     self._misplaced(item[0], item[1])
+                    misplaced_name = item[0] == "bare_name"
                 last_sep = None
                 continue
             merged.append(item)
             last_sep = None
+            misplaced_name = False
         clauses = tuple(c for c in merged if isinstance(c, ast.Clause))
         return ast.TaskDecl(str(tok), clauses, _span(meta), _span_of_token(tok))
 

@@ -297,3 +297,29 @@ def test_ast_spans_point_at_the_source():
     assert f.body.span.end_column == position(src, "x > 0\n", 1)[1] + len("x > 0")
     s = module.systems[0]
     assert [st.name for st in s.states] == ["x", "y"] and (s.states[1].span.line, s.states[1].span.column) == (3, 3)
+
+
+# --------------------------------------------------------------------------- misspelt keywords
+_HOST = "system A { state x in [0, 1]  dt = 0.1  map { x = x } }\n"
+
+
+@pytest.mark.parametrize(
+    "text, fragment",
+    [
+        ("system A { stat x in [0, 1] }", "did you mean the keyword 'state'?"),
+        (_HOST + "formula f = eventualy[0, 3] x < 1", "did you mean the keyword 'eventually'?"),
+        (_HOST + "task t { asap x < 1  dedline 3 }", "did you mean 'deadline'?"),
+    ],
+)
+def test_misspelt_keyword_gets_a_suggestion(text, fragment):
+    with pytest.raises(asap_dsl.SpecError) as info:
+        asap_dsl.loads(text)
+    hints = [d.hint or "" for d in info.value.diagnostics]
+    assert any(fragment in h for h in hints), hints
+
+
+def test_misspelt_clause_is_reported_once_not_also_its_number():
+    with pytest.raises(asap_dsl.SpecError) as info:
+        asap_dsl.loads(_HOST + "task t { asap x < 1  dedline 3 }")
+    e119 = [d for d in info.value.diagnostics if d.code == "E119"]
+    assert len(e119) == 1 and "dedline" in e119[0].message
