@@ -11,4 +11,13 @@ from .program import Formula, Program, Task, load, loads
 
 __version__ = "0.1.0"
 
-__all__ = ["Diagnostic", "Formula", "Program", "SpecError", "Task", "load", "loads", "__version__"]
+__all__ = ["Diagnostic", "Formula", "Program", "SpecError", "Task", "load", "loads", "make_env", "make_vec_env",
+           "__version__"]
+
+
+def __getattr__(name):  # lazy: gymnasium and stable-baselines3 load only when an env is made
+    if name in ("make_env", "make_vec_env"):
+        from . import env
+
+        return getattr(env, name)
+    raise AttributeError(f"module 'asap_dsl' has no attribute '{name}'")

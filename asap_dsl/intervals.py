@@ -75,13 +75,14 @@ class Interval:
                 return Interval(1.0, 1.0)
             if n < 0:
                 return Interval(1.0, 1.0) / (self ** Interval(-n, -n))
+            p = lambda v: _power(v, n)  # noqa: E731
             if n % 2 == 1:
-                return Interval(self.lo ** n, self.hi ** n)
+                return Interval(p(self.lo), p(self.hi))
             if self.lo >= 0:
-                return Interval(self.lo ** n, self.hi ** n)
+                return Interval(p(self.lo), p(self.hi))
             if self.hi <= 0:
-                return Interval(self.hi ** n, self.lo ** n)
-            return Interval(0.0, max(self.lo ** n, self.hi ** n))
+                return Interval(p(self.hi), p(self.lo))
+            return Interval(0.0, max(p(self.lo), p(self.hi)))
         # Real exponent: defined for a positive base only; exp(o * log(self)). A negative base
         # with an exponent that varies over an interval can meet whole exponents (x^y with y = 1, 2),
         # where the power is real and of either sign: nothing narrower than the line is sound.
@@ -91,6 +92,14 @@ class Interval:
 
     def __rpow__(self, o):
         return Interval.of(o) ** self
+
+
+def _power(v: float, n: int) -> float:
+    """``v ** n`` for a whole ``n >= 1``, saturating to ±inf instead of raising OverflowError."""
+    try:
+        return v ** n
+    except OverflowError:
+        return math.inf if v > 0 or n % 2 == 0 else -math.inf
 
 
 def _mul(a: float, b: float) -> float:

@@ -171,3 +171,14 @@ def test_variable_exponent_with_negative_base_is_sound():
                                         ("x / k", 1), ("x / y", math.inf), ("sin(k) * x", 1), ("2", 0)])
 def test_degree(text, deg):
     assert degree(parse_expr(text), SYMBOLS) == deg
+
+
+def test_interval_power_saturates_instead_of_overflowing():
+    import asap_dsl
+    from asap_dsl.intervals import Interval
+
+    assert Interval(-1e300, 1e300) ** 2 == Interval(0.0, float("inf"))
+    assert Interval(-1e300, 2.0) ** 3 == Interval(float("-inf"), 8.0)
+    prog = asap_dsl.loads("system A { state x in [-1e300, 1e300]  dt = 1  map { x = x } }\n"
+                          "region g = ball([0], 1)\ntask t { asap in g  deadline 3 }")
+    assert prog.task("t").rho_bounds == (float("-inf"), 1.0)

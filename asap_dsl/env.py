@@ -1,0 +1,361 @@
+"""A task of a spec as a gymnasium environment, single or truly batched, with the ASAP-Phi reward.
+
+Episodes follow the paper's Algorithm 1 and 2 (LANGUAGE.md, "Tasks"):
+
+* ``reset``: the episode length ``k ~ U{kmin, ..., kmax}``, the initial state ``s0 ~ U(init box)``
+  (redrawn while ``avoid`` holds at step 0; :func:`asap_dsl.sampling.initial_states`).
+* ``step``: actions are clipped to the action bounds; the simulator advances one ``dt``.
+  The episode then ends, in this order of precedence:
+  ``non_finite`` (a NaN/inf state), ``avoid`` (``avoid`` holds), ``out_of_bounds`` (the state left
+  the state space) — all three ``terminated`` (failure) — else ``time_limit`` at step ``k``
+  (``truncated``). Reaching ``asap`` does not end the episode (the agent must stay).
+* The observation is the state as float32, clipped into the state-space box (a terminal state
+  outside it is clipped), plus with ``observe state, time`` the steps left over the deadline.
+  A non-finite state is never observed: it is replaced by the last finite state (the state before
+  the step), which the reward and the monitors also see.
+* ``info``: ``rho`` (ρ of ``asap`` at the step), ``satisfied`` (``asap`` holds), ``t_reach`` (the first
+  step at which ``asap`` held with no failure at that step, else None), ``end_reason`` (None while
+  running, else one of ``END_REASONS``) and ``t`` (steps taken).
+* Rewards: :mod:`asap_dsl.rewards` (the failure step earns the reward's floor).
+
+``make_vec_env`` is an SB3 ``VecEnv`` that steps all entries at once in numpy, with autoreset of
+finished entries (their ``info`` holds ``terminal_observation`` and ``TimeLimit.truncated``) and
+per-entry episode lengths. ``step_arrays`` returns the raw arrays without building info dicts.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+from typing import Any, Optional, Union
+
+import gymnasium as gym
+import numpy as np
+from gymnasium import spaces
+
+from .rewards import FormulaTracker, make_reward
+from .sampling import initial_states
+from .sim import build_simulator
+
+__all__ = ["AsapEnv", "AsapVecEnv", "END_REASONS", "make_env", "make_vec_env", "register_envs"]
+
+END_REASONS = (None, "avoid", "out_of_bounds", "non_finite", "time_limit")
+_AVOID, _OOB, _NONFINITE, _TIME = 1, 2, 3, 4
+
+
+def _program(prog_or_path):
+    from .program import Program, load
+
+    if isinstance(prog_or_path, Program):
+        return prog_or_path
+    if isinstance(prog_or_path, (str, os.PathLike)):
+        return load(prog_or_path)
+    raise TypeError(f"expected a Program or the path of a .asap file; got {type(prog_or_path).__name__}")
+
+
+class _Core:
+    """The batched episode machinery shared by the single and the vector environment."""
+
+    def __init__(self, program, task: Optional[str], batch: int, reward: Any, autoreset: bool,
+                 failure_reward: Optional[float] = None):
+        self.program = program
+        self.task = program.task(task)  # KeyError with a suggestion on an unknown name
+        tm = self.tm = self.task.model
+        sysm = self.system = program.system
+        self.B, self.n, self.autoreset = int(batch), sysm.n_state, autoreset
+        if self.B < 1:
+            raise ValueError(f"num_envs must be at least 1; got {batch}")
+        self.reward = make_reward(tm, program.regions, self.n, self.B, reward, autoreset, failure_reward)
+        self.sim = build_simulator(sysm, self.B, program.file)
+        self.asap = FormulaTracker(tm.asap, self.B, self.n, autoreset=autoreset)
+        self.avoid = FormulaTracker(tm.avoid, self.B, self.n, autoreset=autoreset) if tm.avoid is not None else None
+        trackers = [self.asap] + ([self.avoid] if self.avoid else []) + self.reward.trackers
+        self.trackers = trackers
+        self.need_cand = autoreset and any(not t.static for t in trackers)
+        self.kmin, self.kmax = tm.episode
+        self.low, self.high = sysm.state_low, sysm.state_high
+        self.observe_time = "time" in tm.observe
+        f32max = float(np.finfo(np.float32).max)
+        low32 = np.clip(self.low, -np.inf, np.inf).astype(np.float64)
+        low32 = np.where(np.abs(low32) > f32max, np.sign(low32) * np.inf, low32).astype(np.float32)
+        high32 = np.where(np.abs(self.high) > f32max, np.sign(self.high) * np.inf, self.high).astype(np.float32)
+        if self.observe_time:
+            low32 = np.append(low32, np.float32(0.0))
+            high32 = np.append(high32, np.float32(max(1.0, self.kmax / tm.deadline)))
+        self.obs_low, self.obs_high = low32, high32
+        f32 = float(np.finfo(np.float32).max)
+        self._clip_lo, self._clip_hi = np.maximum(self.low, -f32), np.minimum(self.high, f32)
+        self.observation_space = spaces.Box(low32, high32, dtype=np.float32)
+        self.action_space = spaces.Box(sysm.action_low.astype(np.float32), sysm.action_high.astype(np.float32),
+                                       dtype=np.float32)
+        self.rng = np.random.default_rng()
+        self.states = np.zeros((self.B, self.n))
+        self.t = np.zeros(self.B, dtype=np.int64)
+        self.k = np.zeros(self.B, dtype=np.int64)
+        self.t_reach = np.full(self.B, -1, dtype=np.int64)
+        self.end = np.zeros(self.B, dtype=np.int64)
+
+    # ---- helpers -----------------------------------------------------------------------------
+    def _sample(self, m: int):
+        s0 = initial_states(self.system, m, self.rng, self.tm.avoid)
+        k = self.rng.integers(self.kmin, self.kmax + 1, size=m)
+        return s0, k
+
+    def obs(self, states=None, t=None, k=None) -> np.ndarray:
+        states = self.states if states is None else states
+        o = np.clip(states, self._clip_lo, self._clip_hi).astype(np.float32)
+        o = np.clip(o, self.obs_low[: self.n], self.obs_high[: self.n])
+        if self.observe_time:
+            t = self.t if t is None else t
+            k = self.k if k is None else k
+            left = np.clip((k - t) / self.tm.deadline, 0.0, self.obs_high[-1]).astype(np.float32)
+            o = np.concatenate([o, left[:, None]], axis=1)
+        return o
+
+    def _set_states(self, s: np.ndarray, mask=None) -> np.ndarray:
+        full = self.states.copy()
+        if mask is None:
+            full = s
+        else:
+            full[mask] = s[mask]
+        out = self.sim.reset(full, mask=mask)
+        if not np.allclose(out if mask is None else out[mask], full if mask is None else full[mask],
+                           rtol=1e-9, atol=1e-9, equal_nan=True):
+            raise self.sim._fail("reset did not set the states it was given (the protocol requires "
+                                 "reset(states) to return those states)")
+        return full if mask is None else full
+
+    # ---- episodes ----------------------------------------------------------------------------
+    def reset_all(self) -> np.ndarray:
+        s0, k = self._sample(self.B)
+        self.states = self._set_states(s0)
+        for tr in self.trackers:
+            tr.restart_all(self.states)
+        self.t[:] = 0
+        self.k[:] = k
+        self.end[:] = 0
+        self.t_reach[:] = np.where(self.asap.sat, 0, -1)
+        return self.obs()
+
+    def step(self, actions):
+        """Advance every entry; returns (obs, reward, terminated, truncated, final_obs, done)."""
+        a = np.asarray(actions, dtype=np.float64).reshape(self.B, -1)
+        if a.shape[1] != self.system.n_action:
+            raise ValueError(f"actions must have shape [{self.B}, {self.system.n_action}]; got {np.shape(actions)}")
+        new = self.sim.step(a)
+        self.t += 1
+        finite = np.isfinite(new).all(axis=1)
+        safe = new if finite.all() else np.where(finite[:, None], new, self.states)
+        oob = ((safe < self.low) | (safe > self.high)).any(axis=1)
+        cand = kc = None
+        if self.need_cand:
+            cand, kc = self._sample(self.B)
+        with np.errstate(over="ignore", invalid="ignore"):  # huge finite states: regions may overflow to inf
+            for tr in self.trackers:
+                tr.step(safe, cand)
+        end = np.zeros(self.B, dtype=np.int64)
+        end[oob] = _OOB
+        if self.avoid is not None:
+            end[self.avoid.sat] = _AVOID
+        end[~finite] = _NONFINITE
+        failed = end > 0
+        truncated = ~failed & (self.t >= self.k)
+        end[truncated] = _TIME
+        reward = self.reward.value(safe, self.asap.rob, self.asap.sat, failed)
+        newly = self.asap.sat & ~failed & (self.t_reach < 0)
+        self.t_reach[newly] = self.t[newly]
+        self.states = safe
+        self.end = end
+        obs = self.obs()
+        done = end > 0
+        # Info of the finished step (before any autoreset).
+        self.info_rho = self.asap.rob.copy()
+        self.info_sat = self.asap.sat.copy()
+        self.info_t_reach = self.t_reach.copy()
+        self.info_end = end.copy()
+        self.info_t = self.t.copy()
+        final_obs = None
+        if self.autoreset and done.any():
+            final_obs = obs[done].copy()
+            self.final_states = safe[done].copy()  # the true terminal states (obs are float32, clipped)
+            m = int(done.sum())
+            if cand is None:
+                s0, k0 = self._sample(m)
+                cand = np.zeros((self.B, self.n))
+                cand[done] = s0
+                kc = np.zeros(self.B, dtype=np.int64)
+                kc[done] = k0
+            self.states = self._set_states(cand, mask=done)
+            for tr in self.trackers:
+                tr.restart(done, cand)
+            self.t[done] = 0
+            self.k[done] = kc[done]
+            self.t_reach[done] = np.where(self.asap.sat[done], 0, -1)
+            obs = self.obs()
+        return obs, reward, failed, truncated, final_obs, done
+
+
+def _info(core: _Core, i: int) -> dict:
+    tr = int(core.info_t_reach[i])
+    return {"rho": float(core.info_rho[i]), "satisfied": bool(core.info_sat[i]), "t_reach": None if tr < 0 else tr,
+            "end_reason": END_REASONS[int(core.info_end[i])], "t": int(core.info_t[i])}
+
+
+class AsapEnv(gym.Env):
+    """One episode at a time (a batch of one); see the module docstring for the rules."""
+
+    metadata = {"render_modes": []}
+
+    def __init__(self, program, task: Optional[str] = None, reward: Any = None, seed: Optional[int] = None,
+                 failure_reward: Optional[float] = None, render_mode: Optional[str] = None):
+        super().__init__()
+        self.core = _Core(program, task, 1, reward, autoreset=False, failure_reward=failure_reward)
+        self.program, self.task = program, self.core.task
+        self.observation_space = self.core.observation_space
+        self.action_space = self.core.action_space
+        self.render_mode = render_mode
+        self._first_seed = seed
+        self.spec_file = program.file
+
+    def reset(self, *, seed: Optional[int] = None, options: Optional[dict] = None):
+        if seed is None and self._first_seed is not None:
+            seed, self._first_seed = self._first_seed, None
+        super().reset(seed=seed)
+        self.core.rng = self.np_random
+        obs = self.core.reset_all()
+        c = self.core
+        tr = int(c.t_reach[0])
+        info = {"rho": float(c.asap.rob[0]), "satisfied": bool(c.asap.sat[0]), "t_reach": None if tr < 0 else tr,
+                "end_reason": None, "t": 0}
+        return obs[0], info
+
+    def step(self, action):
+        obs, r, term, trunc, _, _ = self.core.step(np.asarray(action, dtype=np.float64)[None])
+        return obs[0], float(r[0]), bool(term[0]), bool(trunc[0]), _info(self.core, 0)
+
+
+def _vec_base():
+    from stable_baselines3.common.vec_env import VecEnv
+
+    return VecEnv
+
+
+class AsapVecEnv(_vec_base()):
+    """``num_envs`` entries stepped together in numpy; an SB3 ``VecEnv`` with autoreset."""
+
+    def __init__(self, program, task: Optional[str] = None, num_envs: int = 1, seed: Optional[int] = None,
+                 reward: Any = None, failure_reward: Optional[float] = None):
+        self.core = _Core(program, task, num_envs, reward, autoreset=True, failure_reward=failure_reward)
+        self.render_mode = None
+        super().__init__(int(num_envs), self.core.observation_space, self.core.action_space)
+        self.program, self.task = program, self.core.task
+        self.core.rng = np.random.default_rng(seed)
+        self._actions = None
+
+    # SB3 interface
+    def reset(self):
+        if self._seeds and self._seeds[0] is not None:
+            self.core.rng = np.random.default_rng(self._seeds[0])
+        self._reset_seeds()
+        obs = self.core.reset_all()
+        c = self.core
+        self.reset_infos = [{"rho": float(c.asap.rob[i]), "satisfied": bool(c.asap.sat[i]),
+                             "t_reach": None if c.t_reach[i] < 0 else 0, "end_reason": None, "t": 0}
+                            for i in range(self.num_envs)]
+        return obs
+
+    def step_async(self, actions) -> None:
+        self._actions = actions
+
+    def step_arrays(self, actions):
+        """(obs, reward, terminated, truncated) as arrays, autoreset done; no info dicts."""
+        obs, r, term, trunc, final_obs, done = self.core.step(actions)
+        self.last_final_obs, self.last_done = final_obs, done
+        return obs, r.astype(np.float32), term, trunc
+
+    def step_wait(self):
+        obs, r, term, trunc = self.step_arrays(self._actions)
+        c = self.core
+        rho, sat, trch, end, tt = (c.info_rho.tolist(), c.info_sat.tolist(), c.info_t_reach.tolist(),
+                                   c.info_end.tolist(), c.info_t.tolist())
+        infos = [{"rho": rho[i], "satisfied": sat[i], "t_reach": None if trch[i] < 0 else trch[i],
+                  "end_reason": END_REASONS[end[i]], "t": tt[i]} for i in range(self.num_envs)]
+        done = self.last_done
+        if done.any():
+            for j, i in enumerate(np.flatnonzero(done)):
+                infos[i]["terminal_observation"] = self.last_final_obs[j]
+                infos[i]["TimeLimit.truncated"] = bool(trunc[i] and not term[i])
+        return obs, r, done.copy(), infos
+
+    def close(self) -> None:
+        pass
+
+    def get_attr(self, attr_name, indices=None):
+        return [getattr(self, attr_name) for _ in self._get_indices(indices)]
+
+    def set_attr(self, attr_name, value, indices=None) -> None:
+        setattr(self, attr_name, value)
+
+    def env_method(self, method_name, *method_args, indices=None, **method_kwargs):
+        return [getattr(self, method_name)(*method_args, **method_kwargs) for _ in self._get_indices(indices)]
+
+    def env_is_wrapped(self, wrapper_class, indices=None):
+        return [False for _ in self._get_indices(indices)]
+
+    def _get_indices(self, indices):
+        if indices is None:
+            return range(self.num_envs)
+        if isinstance(indices, int):
+            return [indices]
+        return indices
+
+
+def make_env(prog_or_path, task: Optional[str] = None, reward: Any = None, seed: Optional[int] = None, **kw) -> AsapEnv:
+    """A ``gymnasium.Env`` for ``task`` of a spec (a Program or a path).
+
+    ``reward``: None (the task's own), ``"asap"``, ``"rho"``, ``"rho(window = 5)"``,
+    ``"distance(lambda_t = 1, lambda_o = 1, base = 0)"``. ``seed`` seeds the first reset.
+    Keyword: ``failure_reward`` (a constant for the failure step instead of the reward's floor).
+    """
+    return AsapEnv(_program(prog_or_path), task=task, reward=reward, seed=seed, **kw)
+
+
+def make_vec_env(prog_or_path, task: Optional[str] = None, num_envs: int = 1, seed: Optional[int] = None,
+                 reward: Any = None, **kw) -> AsapVecEnv:
+    """A batched vector env (stable-baselines3 ``VecEnv``) of ``num_envs`` entries."""
+    return AsapVecEnv(_program(prog_or_path), task=task, num_envs=num_envs, seed=seed, reward=reward, **kw)
+
+
+# ---- gymnasium ids ----------------------------------------------------------------------------
+
+SPECS_DIR = Path(__file__).resolve().parent.parent / "specs"
+
+
+def _make_registered(path: str, task: str, **kw):
+    return make_env(path, task=task, **kw)
+
+
+def register_envs(specs_dir: Union[str, os.PathLike, None] = None) -> list[str]:
+    """Register ``asap/<spec>-<task>-v0`` for each task of each ``*.asap`` in ``specs_dir``
+    (default: the repository's specs/). Spec files are read now; simulators are built on ``make``."""
+    from .program import load
+
+    d = Path(specs_dir) if specs_dir is not None else SPECS_DIR
+    ids = []
+    if not d.is_dir():
+        return ids
+    for f in sorted(d.glob("*.asap")):
+        try:
+            prog = load(f)
+        except Exception:  # noqa: BLE001 — a broken spec is not registered; lint reports it
+            continue
+        for t in prog.tasks:
+            env_id = f"asap/{f.stem}-{t}-v0"
+            if env_id not in gym.registry:
+                gym.register(id=env_id, entry_point="asap_dsl.env:_make_registered",
+                             kwargs={"path": str(f), "task": t}, max_episode_steps=None, disable_env_checker=True)
+            ids.append(env_id)
+    return ids
+
+
+REGISTERED_IDS = register_envs()

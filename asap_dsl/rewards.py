@@ -1,0 +1,355 @@
+"""Per-step rewards of a task, computed incrementally with online monitors.
+
+Every reward is a function of the trace up to the state the step reached (step t = 1, 2, ...;
+step 0 is the initial state and earns no reward). Nothing re-evaluates the prefix:
+
+* ``asap`` — ASAP-Phi (the paper's equation 1): ``rho(s, t, phi_T)`` while ``phi_T`` does not hold at
+  t, ``r_sat`` once it holds. With ``r_sat auto`` (the default) rho is clipped into the interval
+  bounds ``[rho_min, rho_max]`` of ``phi_T`` over the state space and scaled by
+  ``1 / (rho_max - rho_min)``; ``r_sat = rho_max' + k_max + 1``, which satisfies the theorem's
+  ``r_sat > rho_max' + (rho_max' - rho_min') k_max``. A numeric ``r_sat`` is used as written and rho
+  is left unscaled (still clipped into the bounds).
+* ``rho`` — the robustness of the task's specification
+  ``eventually[0, D] asap and always[0, D] not avoid`` at time 0 of the prefix (PrefixMonitor).
+* ``rho(window = W)`` — the specification over the last W steps only (the paper's "finite dense"
+  reward): the causal ``once[0, W-1] asap and historically[0, W-1] not avoid`` at t.
+* ``distance(lambda_t, lambda_o, base)`` — ``-lambda_t d_T + lambda_o d_O + base`` with ``d_T`` (``d_O``) the
+  Euclidean distance to the nearest region named by an ``in R`` atom of ``asap`` (``avoid``);
+  without ``avoid`` the ``d_O`` term is 0.
+
+**The failure step** (the step that ends the episode by ``avoid``, leaving the state space or a
+non-finite state): the paper only stops the episode. Here that step earns the *floor* of the
+reward: the lowest value the reward can take while ``phi_T`` does not hold — ``rho_min'`` (scaled)
+for ``asap``, the lower interval bound of the formula for ``rho`` and ``rho(window)``. So a failure
+never earns ``r_sat`` (in attitude control the unsafe ball lies inside the target) and can never
+pay more than any other step. ``distance`` has no bound: it is evaluated on the reached state
+(the last finite one), where ``d_O = 0`` inside an obstacle. ``failure_reward=`` overrides this with
+a constant.
+
+Values: rho of a past window that is still empty is +-inf by the semantics; rewards clip it into
+the interval bounds, and where a bound is unknown (infinite) an infinite value becomes 0.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+from typing import Any, Mapping, Optional, Sequence
+
+import numpy as np
+
+from .model import RegionModel, RewardModel, TaskModel, formula_bounds
+from .stl import ir
+
+__all__ = ["REWARD_KINDS", "FormulaTracker", "Reward", "make_reward", "parse_reward", "reward_trace"]
+
+REWARD_KINDS = {"asap": (), "rho": ("window",), "distance": ("lambda_t", "lambda_o", "base")}
+
+
+# --------------------------------------------------------------------------------------------
+# Formula values at the newest step, batched, with per-entry restarts.
+# --------------------------------------------------------------------------------------------
+
+
+def _is_static(node: ir.Formula) -> bool:
+    """True for boolean combinations of atoms: the value at t depends on s_t only."""
+    if isinstance(node, (ir.Atom, ir.Const)):
+        return True
+    if isinstance(node, (ir.Not, ir.And, ir.Or, ir.Implies)):
+        return all(_is_static(c) for c in ir.children(node))
+    return False
+
+
+def _static_eval(node: ir.Formula, states: np.ndarray, boolean: bool) -> np.ndarray:
+    if isinstance(node, ir.Atom):
+        return np.asarray(node.satisfied(states) if boolean else node.robustness(states),
+                          dtype=bool if boolean else np.float64)
+    if isinstance(node, ir.Const):
+        v = node.value if boolean else (math.inf if node.value else -math.inf)
+        return np.full(states.shape[0], v, dtype=bool if boolean else np.float64)
+    if isinstance(node, ir.Not):
+        v = _static_eval(node.arg, states, boolean)
+        return ~v if boolean else -v
+    a = _static_eval(node.left, states, boolean)
+    b = _static_eval(node.right, states, boolean)
+    if isinstance(node, ir.Implies):
+        a = ~a if boolean else -a
+    if isinstance(node, ir.And):
+        return (a & b) if boolean else np.minimum(a, b)
+    return (a | b) if boolean else np.maximum(a, b)
+
+
+class FormulaTracker:
+    """ρ (and ⊨) of a formula at the newest step of B traces, restartable per entry.
+
+    ``restart_all(states)`` starts every trace at ``states`` (step 0); ``step(states, cand)``
+    appends ``states``; ``restart(mask)`` restarts the masked entries at the candidate initial
+    states ``cand`` given to the last ``step``. Results are in ``.rob`` / ``.sat`` (``[B]``).
+
+    Formulas of atoms only are evaluated directly. Others use an online monitor; with
+    ``autoreset`` it holds two lanes per entry: each ``step`` appends the new state to the active
+    lane and starts a fresh trace at the candidate in the standby lane, in the same monitor update,
+    so an entry that finishes in this step continues from its standby lane (the lanes swap) without
+    an extra update of the others. The monitor then does twice the work, never a re-evaluation.
+    """
+
+    def __init__(self, node: ir.Formula, batch: int, n_state: int, *, satisfaction: bool = True,
+                 autoreset: bool = False):
+        from .stl import online
+
+        self.node, self.B, self.n = node, int(batch), n_state
+        self.satisfaction, self.autoreset = satisfaction, autoreset
+        self.static = _is_static(node)
+        self.rob = np.zeros(self.B)
+        self.sat = np.zeros(self.B, dtype=bool)
+        self._cand = None
+        if self.static:
+            return
+        lanes = 2 if autoreset else 1
+        self.mon = online.monitor_for(node, lanes * self.B, satisfaction=satisfaction, n_state=n_state)
+        self.active = np.arange(self.B)
+        self.standby = np.arange(self.B) + self.B
+        self._all_rob = np.zeros(lanes * self.B)
+        self._all_sat = np.zeros(lanes * self.B, dtype=bool)
+
+    def _eval_static(self, states):
+        rob = _static_eval(self.node, states, False)
+        sat = _static_eval(self.node, states, True) if self.satisfaction else np.zeros(len(states), bool)
+        return rob, sat
+
+    def _update(self, states2):
+        self._all_rob = self.mon.update(states2).copy()
+        if self.satisfaction:
+            self._all_sat = self.mon.satisfied.copy()
+
+    def restart_all(self, states: np.ndarray) -> None:
+        states = np.asarray(states, dtype=np.float64)
+        if self.static:
+            self.rob, self.sat = self._eval_static(states)
+            return
+        self.mon.reset()
+        if self.autoreset:
+            self.active = np.arange(self.B)
+            self.standby = self.active + self.B
+            self._update(np.concatenate([states, states]))
+        else:
+            self._update(states)
+        self.rob = self._all_rob[: self.B].copy()
+        self.sat = self._all_sat[: self.B].copy()
+
+    def step(self, states: np.ndarray, cand: Optional[np.ndarray] = None) -> None:
+        states = np.asarray(states, dtype=np.float64)
+        self._cand = cand
+        if self.static:
+            self.rob, self.sat = self._eval_static(states)
+            return
+        if not self.autoreset:
+            self._update(states)
+            self.rob, self.sat = self._all_rob, self._all_sat
+            return
+        if cand is None:
+            raise ValueError("an autoreset tracker needs candidate initial states every step")
+        mask = np.zeros(2 * self.B, dtype=bool)
+        mask[self.standby] = True
+        self.mon.reset(mask)
+        states2 = np.empty((2 * self.B, self.n))
+        states2[self.active] = states
+        states2[self.standby] = cand
+        self._update(states2)
+        self.rob = self._all_rob[self.active]
+        self.sat = self._all_sat[self.active]
+
+    def restart(self, mask: np.ndarray, cand: Optional[np.ndarray] = None) -> None:
+        """Restart the masked entries at the candidates of the last ``step`` (their step 0).
+
+        A tracker of atoms only may instead be given the initial states now, as ``cand [B, n]``."""
+        if not mask.any():
+            return
+        if self.static:
+            c = self._cand if cand is None else cand
+            r, s = self._eval_static(np.asarray(c, dtype=np.float64)[mask])
+            self.rob = self.rob.copy()
+            self.sat = self.sat.copy()
+            self.rob[mask], self.sat[mask] = r, s
+            return
+        if not self.autoreset:
+            raise ValueError("restart needs a tracker built with autoreset=True")
+        a = self.active[mask].copy()
+        self.active[mask] = self.standby[mask]
+        self.standby[mask] = a
+        self.rob = self._all_rob[self.active]
+        self.sat = self._all_sat[self.active]
+
+
+# --------------------------------------------------------------------------------------------
+# Rewards
+# --------------------------------------------------------------------------------------------
+
+
+def _clip_finite(x: np.ndarray, lo: float, hi: float) -> np.ndarray:
+    x = np.clip(x, lo, hi)
+    if not (math.isfinite(lo) and math.isfinite(hi)):
+        x = np.where(np.isfinite(x), x, 0.0)
+    return x
+
+
+_REWARD_RE = re.compile(r"^\s*([A-Za-z_]\w*)\s*(?:\((.*)\))?\s*$")
+
+
+def parse_reward(text: str) -> RewardModel:
+    """``"asap"``, ``"rho"``, ``"rho(window = 5)"``, ``"distance(lambda_t=2, base=1)"`` -> RewardModel."""
+    m = _REWARD_RE.match(text)
+    if not m:
+        raise ValueError(f"cannot read the reward {text!r}; write e.g. asap, rho, rho(window = 5), distance(lambda_t = 1)")
+    kind, args = m.group(1), m.group(2)
+    params: dict[str, float] = {}
+    if args and args.strip():
+        for part in args.split(","):
+            if "=" not in part:
+                raise ValueError(f"reward setting {part.strip()!r} in {text!r} needs the form name = value")
+            k, v = (s.strip() for s in part.split("=", 1))
+            try:
+                params[k] = float(v)
+            except ValueError:
+                raise ValueError(f"reward setting {k} = {v!r} in {text!r} is not a number") from None
+    return _checked_model(kind, params)
+
+
+def _checked_model(kind: str, params: Mapping[str, float]) -> RewardModel:
+    if kind not in REWARD_KINDS:
+        from .diagnostics import closest
+
+        sug = closest(kind, tuple(REWARD_KINDS))
+        hint = f"; did you mean '{sug}'?" if sug else ""
+        raise ValueError(f"unknown reward '{kind}'{hint} (choose asap, rho, rho(window = D) or distance(...))")
+    params = dict(params)
+    for k in params:
+        if k not in REWARD_KINDS[kind]:
+            raise ValueError(f"reward {kind} has no setting '{k}' (it takes {', '.join(REWARD_KINDS[kind]) or 'no settings'})")
+    if "window" in params:
+        w = params["window"]
+        if not float(w).is_integer() or w < 1:
+            raise ValueError(f"the reward window must be a whole number of steps, at least 1; got {w}")
+        params["window"] = int(w)
+    if kind == "distance":
+        params = {"lambda_t": 1.0, "lambda_o": 1.0, "base": 0.0, **params}
+    return RewardModel(kind, params)
+
+
+def resolve_reward(task: TaskModel, reward: Any = None) -> RewardModel:
+    """The reward to use: the task's own, or ``reward`` (a kind, a text with settings, or a model)."""
+    if reward is None:
+        return task.reward
+    if isinstance(reward, RewardModel):
+        return _checked_model(reward.kind, reward.params)
+    if not isinstance(reward, str):
+        raise TypeError(f"reward must be a string such as 'asap' or 'rho(window = 5)'; got {type(reward).__name__}")
+    model = parse_reward(reward)
+    if "(" not in reward and model.kind == task.reward.kind:
+        return task.reward  # the task's own settings
+    return model
+
+
+class Reward:
+    """Batched per-step reward of one kind, with the trackers it needs (besides ``asap``'s)."""
+
+    def __init__(self, task: TaskModel, regions: Mapping[str, RegionModel], n_state: int, batch: int,
+                 model: RewardModel, autoreset: bool = False, failure_reward: Optional[float] = None):
+        self.task, self.model, self.kind, self.B = task, model, model.kind, int(batch)
+        self.trackers: list[FormulaTracker] = []
+        self.tracker: Optional[FormulaTracker] = None
+        self.bounds = (-math.inf, math.inf)
+        if self.kind == "asap":
+            lo, hi = task.rho_bounds
+            self.bounds = (lo, hi)
+            self.auto = task.r_sat is None
+            self.scale = task.rho_scale if self.auto else 1.0
+            self.r_sat = float(task.r_sat_value)
+            floor = lo * self.scale
+        elif self.kind == "rho":
+            window = model.params.get("window")
+            if window is None:
+                node = task.spec
+            else:
+                iv = ir.Interval(0, int(window) - 1)
+                node = ir.Once(iv, task.asap)
+                if task.avoid is not None:
+                    node = ir.And(node, ir.Historically(iv, ir.Not(task.avoid)))
+            self.node = node
+            self.bounds = formula_bounds(node)
+            self.tracker = FormulaTracker(node, batch, n_state, satisfaction=False, autoreset=autoreset)
+            self.trackers.append(self.tracker)
+            floor = self.bounds[0]
+        else:  # distance
+            if not task.asap_regions:
+                raise ValueError(f"task {task.name}: the distance reward needs region atoms (`in R`) in `asap`, "
+                                 "and this task's asap has none; use reward asap or rho")
+            if task.avoid is not None and not task.avoid_regions:
+                raise ValueError(f"task {task.name}: the distance reward needs region atoms (`in R`) in `avoid`, "
+                                 "and this task's avoid has none")
+            self.goal = [regions[r] for r in task.asap_regions]
+            self.obstacles = [regions[r] for r in task.avoid_regions] if task.avoid is not None else []
+            p = model.params
+            self.lt, self.lo_, self.base = float(p.get("lambda_t", 1.0)), float(p.get("lambda_o", 1.0)), float(p.get("base", 0.0))
+            floor = None
+        if failure_reward is not None:
+            floor = float(failure_reward)
+        self.floor = floor if floor is not None and math.isfinite(floor) else None
+
+    # The env calls these in step with the trackers of asap; ``value`` reads them.
+    def restart_all(self, states):
+        for t in self.trackers:
+            t.restart_all(states)
+
+    def step(self, states, cand=None):
+        for t in self.trackers:
+            t.step(states, cand)
+
+    def restart(self, mask, cand=None):
+        for t in self.trackers:
+            t.restart(mask, cand)
+
+    def value(self, states: np.ndarray, asap_rob: np.ndarray, asap_sat: np.ndarray,
+              failed: Optional[np.ndarray] = None) -> np.ndarray:
+        """The reward of each entry for the step that reached ``states``."""
+        if self.kind == "asap":
+            rho = _clip_finite(asap_rob, *self.bounds) * self.scale
+            r = np.where(asap_sat, self.r_sat, rho)
+            if failed is not None and failed.any():
+                r = np.where(failed, rho if self.floor is None else self.floor, r)
+            return r
+        if self.kind == "rho":
+            r = _clip_finite(self.tracker.rob, *self.bounds)
+        else:
+            d_t = np.min([g.distance(states) for g in self.goal], axis=0)
+            d_o = np.min([o.distance(states) for o in self.obstacles], axis=0) if self.obstacles else 0.0
+            r = -self.lt * d_t + self.lo_ * d_o + self.base
+        if failed is not None and failed.any() and self.floor is not None:
+            r = np.where(failed, self.floor, r)
+        return np.asarray(r, dtype=np.float64)
+
+
+def make_reward(task: TaskModel, regions: Mapping[str, RegionModel], n_state: int, batch: int = 1,
+                reward: Any = None, autoreset: bool = False, failure_reward: Optional[float] = None) -> Reward:
+    return Reward(task, regions, n_state, batch, resolve_reward(task, reward), autoreset, failure_reward)
+
+
+def reward_trace(program, task: str, trace: Any, reward: Any = None) -> np.ndarray:
+    """Rewards of a whole trace ``[T, n]`` (or ``[B, T, n]``) step by step, as an env computes them:
+    ``out[..., t-1]`` is the reward of the step reaching ``s_t`` (no failure handling)."""
+    tr = np.asarray(trace, dtype=np.float64)
+    single = tr.ndim == 2
+    if single:
+        tr = tr[None]
+    B, T, n = tr.shape
+    tm = program.task(task).model
+    rw = make_reward(tm, program.regions, n, B, reward)
+    asap = FormulaTracker(tm.asap, B, n)
+    asap.restart_all(tr[:, 0])
+    rw.restart_all(tr[:, 0])
+    out = np.zeros((B, T - 1))
+    for t in range(1, T):
+        asap.step(tr[:, t])
+        rw.step(tr[:, t])
+        out[:, t - 1] = rw.value(tr[:, t], asap.rob, asap.sat)
+    return out[0] if single else out

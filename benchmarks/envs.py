@@ -1,0 +1,57 @@
+"""Steps per second of the batched vector env against gymnasium's SyncVectorEnv over the single env.
+
+Both run the same spec, task and reward with random actions, measured side by side in one run.
+`batched` is AsapVecEnv.step (SB3 interface, info dicts included); `arrays` is step_arrays (no
+info dicts); `sync` is gymnasium.vector.SyncVectorEnv of make_env (same-step autoreset).
+Usage: python benchmarks/envs.py [--seconds 2]
+"""
+
+import argparse
+import time
+from pathlib import Path
+
+import gymnasium
+import numpy as np
+
+import asap_dsl
+
+SPECS = Path(__file__).resolve().parent.parent / "specs"
+CASES = [("dc_motor", 64), ("dc_motor", 1024), ("attitude", 64), ("attitude", 1024), ("swimmer", 64)]
+
+
+def rate(step, n_envs, actions, seconds):
+    step(actions[0])  # warm up
+    steps, t0, i = 0, time.perf_counter(), 0
+    while True:
+        step(actions[i % len(actions)])
+        steps += 1
+        i += 1
+        el = time.perf_counter() - t0
+        if el >= seconds and steps >= 3:
+            return steps * n_envs / el
+
+
+def main():
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--seconds", type=float, default=2.0)
+    ap.add_argument("--task", default="reach_avoid")
+    args = ap.parse_args()
+    print(f"{'spec':10s} {'envs':>5s} {'batched':>12s} {'arrays':>12s} {'sync':>12s} {'ratio':>7s}   (env steps/s)")
+    for spec, n in CASES:
+        path = SPECS / f"{spec}.asap"
+        venv = asap_dsl.make_vec_env(path, args.task, num_envs=n, seed=0)
+        venv.reset()
+        rng = np.random.default_rng(0)
+        lo, hi = venv.action_space.low, venv.action_space.high
+        actions = [rng.uniform(lo, hi, size=(n, lo.shape[0])).astype(np.float32) for _ in range(16)]
+        batched = rate(venv.step, n, actions, args.seconds)
+        arrays = rate(venv.step_arrays, n, actions, args.seconds)
+        sync = gymnasium.vector.SyncVectorEnv([lambda: asap_dsl.make_env(path, args.task) for _ in range(n)],
+                                              autoreset_mode=gymnasium.vector.AutoresetMode.SAME_STEP)
+        sync.reset(seed=0)
+        s = rate(sync.step, n, actions, args.seconds)
+        print(f"{spec:10s} {n:5d} {batched:12,.0f} {arrays:12,.0f} {s:12,.0f} {batched / s:6.1f}x")
+
+
+if __name__ == "__main__":
+    main()
