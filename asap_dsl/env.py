@@ -328,7 +328,9 @@ def make_vec_env(prog_or_path, task: Optional[str] = None, num_envs: int = 1, se
 
 # ---- gymnasium ids ----------------------------------------------------------------------------
 
-SPECS_DIR = Path(__file__).resolve().parent.parent / "specs"
+# The benchmark specs ship inside the wheel as asap_dsl/specs; a source checkout has them in specs/.
+_HERE = Path(__file__).resolve().parent
+SPECS_DIR = _HERE / "specs" if (_HERE / "specs").is_dir() else _HERE.parent / "specs"
 
 
 def _make_registered(path: str, task: str, **kw):
