@@ -79,7 +79,7 @@ def _deep_checks(prog: Program, args: argparse.Namespace) -> list[Diagnostic]:
             state, reason = bad[0]
             shown = ", ".join(f"{n}={v:.3g}" for n, v in zip(prog.system.state_names, state))
             out.append(make("W208", f"{len(bad)} of {args.samples} sampled initial states of task '{name}' cannot fulfil "
-                            f"`asap` within the deadline of {task.deadline} steps (e.g. {shown}: {reason})",
+                            f"`asap` within the deadline of {task.deadline} steps, e.g. from {shown} ({reason})",
                             task.clause_spans["deadline"], prog.file,
                             hint="enlarge the deadline or the action bounds, or shrink the init box"))
     return out

@@ -1,0 +1,685 @@
+"""The minimum-time oracle: the fewest steps in which *any* admissible policy can fulfil a task.
+
+For a task whose ``asap`` and ``avoid`` are built from region atoms (``in R``, with ``not``,
+``and``, ``or``, ``->``) on a system with known dynamics (``ode`` or ``map``), the oracle computes
+for each initial state x0 the smallest N such that some action sequence within the action bounds
+reaches ``asap`` at step N, with ``avoid`` false and the state inside the state space at steps
+1..N, under the simulator's very discretisation (:func:`asap_dsl.dynamics.casadi_step`).
+
+How
+---
+* One NLP per (N, disjunct of ``asap`` in disjunctive normal form), built once with CasADi
+  (multiple shooting: the states at steps 1..N are variables tied by ``x_k = step(x_{k-1},
+  u_{k-1})``), solved by IPOPT through an ``nlpsol`` whose parameter is x0. The same NLP serves
+  every initial state; it is warm-started from the solution of the previous (nearest) state at the
+  same N, or from this state's solution at N-1.
+* The NLP is *elastic*: the goal, the ``avoid`` constraints and the state-space bounds each get a
+  non-negative slack, and the objective is the sum of slacks. It is therefore always feasible (no
+  IPOPT infeasibility detection, which is slow and unreliable), and N is feasible exactly when
+  the optimum is zero. Balls are squared distances (``|v-c|^2 <= (r-d)^2`` inside,
+  ``>= (r+d)^2`` outside), boxes are linear sides; the goal is shrunk and ``avoid`` and the state
+  space are grown by a tiny margin d so that the solution survives the replay.
+* N-search: minimum time is not monotone in N (the goal need not be invariant), so there is no
+  bisection: N goes upward from a lower bound to the deadline and the first feasible N is the
+  answer. For linear dynamics the lower bound is a support-function test (the goal must not be
+  separated from the reachable set of step N by the hyperplane normal to the direction from the
+  free response to the goal, ignoring the state space and ``avoid``: a relaxation, so the bound is
+  sound and skips most infeasible N without a solve); otherwise the search starts at 0.
+* Labels: ``exact`` when the feasibility problem of every N is convex — linear dynamics (an
+  ``ode`` with ``integrator exact`` or any integrator of a linear ODE, or a linear ``map``), goal
+  literals that are balls/boxes over linear coordinates, no ``avoid``: then IPOPT's optimum is
+  global and "not feasible at N" is a proof. Everything else is ``local``: IPOPT's local optimum,
+  so the reported minimum is an upper bound on the true minimum time from that state.
+* Verification: the action sequence is replayed through :func:`asap_dsl.dynamics.numpy_step` (the
+  simulator's own step) and checked with the task's own formulas; a state is ``verified`` only if
+  the replay reaches ``asap`` at step N, never satisfies ``avoid`` and never leaves the state space.
+
+Per-state statuses: ``solved`` (a minimum N found), ``infeasible`` (no N up to the deadline;
+clean solves), ``solver_failed`` (no N found and IPOPT failed at some N), ``nan`` (a non-finite
+initial state or dynamics). Solver failures never raise.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+from typing import Any, Optional, Sequence
+
+import numpy as np
+
+from asap_dsl import ast
+from asap_dsl.diagnostics import Span
+from asap_dsl.dynamics import casadi_step, numpy_step
+from asap_dsl.expr import casadi_namespace, compile_function, degree
+from asap_dsl.sampling import EVAL_SEED, evaluation_states
+from asap_dsl.stl import ir, offline
+
+#: Margin by which the goal is shrunk and ``avoid`` / the state space are kept clear in the NLP.
+MARGIN = 1e-6
+#: An NLP optimum (sum of slacks) at most this is "feasible" (then the replay decides).
+FEASIBLE_TOL = 1e-7
+#: Solver return statuses that count as a clean solve.
+GOOD_STATUSES = ("Solve_Succeeded", "Solved_To_Acceptable_Level")
+
+IPOPT_OPTIONS = {
+    "ipopt.print_level": 0,
+    "ipopt.sb": "yes",
+    "print_time": False,
+    "ipopt.tol": 1e-9,
+    "ipopt.constr_viol_tol": 1e-9,
+    "ipopt.acceptable_tol": 1e-7,
+    "ipopt.max_iter": 400,
+    "ipopt.mu_strategy": "adaptive",
+}
+
+
+class OracleUnsupported(ValueError):
+    """The oracle cannot treat this system or task (black box, non-region formula, ...)."""
+
+
+# --------------------------------------------------------------------------- formulas
+# Normalised formulas: ("lit", region, positive) | ("and", [..]) | ("or", [..]) | ("const", bool)
+
+def _unsupported(node: ir.Formula, what: str) -> OracleUnsupported:
+    return OracleUnsupported(
+        f"the oracle supports region goals only (`in R` atoms combined with not/and/or): "
+        f"{what} `{ir.to_text(node)}` is not supported")
+
+
+def _nnf(node: ir.Formula, positive: bool = True):
+    """Negation normal form over region literals; raises OracleUnsupported otherwise."""
+    if isinstance(node, ir.Atom):
+        if not node.text.startswith("in "):
+            raise _unsupported(node, "the comparison")
+        return ("lit", node.text[3:].strip(), positive)
+    if isinstance(node, ir.Const):
+        return ("const", node.value == positive)
+    if isinstance(node, ir.Not):
+        return _nnf(node.arg, not positive)
+    if isinstance(node, ir.Implies):
+        return _nnf(ir.Or(ir.Not(node.left), node.right), positive)
+    if isinstance(node, (ir.And, ir.Or)):
+        is_and = isinstance(node, ir.And) == positive
+        return ("and" if is_and else "or", [_nnf(node.left, positive), _nnf(node.right, positive)])
+    raise _unsupported(node, "the temporal formula")
+
+
+def _dnf(f, limit: int = 64) -> list[list[tuple[str, bool]]]:
+    """Disjunctive normal form: a list of conjunctions of (region, positive) literals."""
+    kind = f[0]
+    if kind == "lit":
+        return [[(f[1], f[2])]]
+    if kind == "const":
+        return [[]] if f[1] else []
+    parts = [_dnf(g, limit) for g in f[1]]
+    if kind == "or":
+        return [c for p in parts for c in p]
+    out: list[list[tuple[str, bool]]] = [[]]
+    for p in parts:
+        out = [a + b for a in out for b in p]
+        if len(out) > limit:
+            raise OracleUnsupported("the oracle supports region goals only: this `asap` formula has too many "
+                                    f"alternatives (more than {limit}) once expanded")
+    return out
+
+
+def _literals(f) -> list[tuple[str, bool]]:
+    kind = f[0]
+    if kind == "lit":
+        return [(f[1], f[2])]
+    if kind in ("and", "or"):
+        return [lit for g in f[1] for lit in _literals(g)]
+    return []
+
+
+@dataclass
+class StateResult:
+    """The oracle's answer for one initial state."""
+
+    index: int
+    x0: np.ndarray
+    steps: Optional[int]          # the minimum N, None if none up to the deadline
+    status: str                   # solved | infeasible | solver_failed | nan
+    verified: bool
+    failures: int = 0             # IPOPT failures over the N tried
+    solves: int = 0               # NLPs solved for this state
+    lower_bound: int = 0          # where the N-search started
+    actions: Optional[np.ndarray] = None   # [N, m]
+    trajectory: Optional[np.ndarray] = None  # [N+1, n], the numpy replay
+    seconds: float = 0.0
+
+    def to_dict(self, with_actions: bool = False) -> dict:
+        d = {"index": self.index, "x0": [float(v) for v in self.x0], "steps": self.steps,
+             "status": self.status, "verified": self.verified, "failures": self.failures,
+             "solves": self.solves, "lower_bound": self.lower_bound, "seconds": round(self.seconds, 6)}
+        if with_actions:
+            d["actions"] = None if self.actions is None else self.actions.tolist()
+        return d
+
+    @classmethod
+    def from_dict(cls, d: dict) -> "StateResult":
+        acts = d.get("actions")
+        return cls(d["index"], np.asarray(d["x0"], float), d["steps"], d["status"], d["verified"],
+                   d.get("failures", 0), d.get("solves", 0), d.get("lower_bound", 0),
+                   None if acts is None else np.asarray(acts, float), None, d.get("seconds", 0.0))
+
+
+class Oracle:
+    """Minimum-time oracle for one task of a program (built once, solved for many states)."""
+
+    def __init__(self, prog, task: Optional[str] = None, ipopt_options: Optional[dict] = None):
+        import casadi as ca
+
+        self.ca = ca
+        self.prog = prog
+        self.system = sys_ = prog.system
+        if sys_.kind == "simulator":
+            raise OracleUnsupported(
+                f"system {sys_.name} is a black-box simulator ({sys_.simulator}): no known dynamics: "
+                "the oracle needs an ode or map system")
+        t = prog.task(task)
+        self.task = t
+        self.task_name = t.model.name
+        self.deadline = int(t.model.deadline)
+        self.tolerances = tuple(int(v) for v in t.model.tolerances)
+        self.goal_dnf = _dnf(_nnf(t.model.asap))
+        self.safe_nnf = None if t.model.avoid is None else _nnf(t.model.avoid, positive=False)
+        self.regions = prog.regions
+        for name, _ in [lit for c in self.goal_dnf for lit in c] + (_literals(self.safe_nnf) if self.safe_nnf else []):
+            if name not in self.regions:
+                raise OracleUnsupported(f"the oracle supports region goals only: unknown region '{name}'")
+        self.n, self.m = sys_.n_state, sys_.n_action
+        self.step_np = numpy_step(sys_)
+        self.step_ca = casadi_step(sys_)
+        self.opts = dict(IPOPT_OPTIONS, **(ipopt_options or {}))
+        self.low, self.high = sys_.state_low, sys_.state_high
+        self.ulow, self.uhigh = sys_.action_low, sys_.action_high
+        self.linear = self._is_linear()
+        literals = [lit for c in self.goal_dnf for lit in c]
+        self.convex = (self.linear and self.safe_nnf is None
+                       and all(pos and self._coords_linear(r) for r, pos in literals))
+        self.label = "exact" if self.convex else "local"
+        self._coords_fn: dict[str, Any] = {}
+        self._solvers: dict[tuple[int, int], Any] = {}
+        self._warm: dict[tuple[int, int], dict] = {}   # last solution per (N, disjunct)
+        self._affine = self._affine_step() if self.linear else None
+
+    # ------------------------------------------------------------------ analysis
+    def _is_linear(self) -> bool:
+        s = self.system
+        if s.kind == "ode" and s.integrator.method == "exact":
+            return True
+        return all(degree(e, s.symbols) <= 1 for e in s.equations)
+
+    def _coords_linear(self, region: str) -> bool:
+        return all(degree(ast.Name(c, Span()), self.system.symbols) <= 1 for c in self.regions[region].coords)
+
+    def _affine_step(self):
+        """``(A, B, c)`` of the (linear) one-step map, probed through the simulator's step."""
+        n, m = self.n, self.m
+        f = self.step_np
+        c = f(np.zeros((1, n)), np.zeros((1, m)))[0]
+        A = np.stack([f(np.eye(n)[i:i + 1], np.zeros((1, m)))[0] - c for i in range(n)], axis=1)
+        B = np.stack([f(np.zeros((1, n)), np.eye(m)[j:j + 1])[0] - c for j in range(m)], axis=1)
+        return A, B, c
+
+    def _coord_affine(self, region: str):
+        """``(P, p)`` with region values ``v = P x + p`` (linear coordinates only)."""
+        vals = self.regions[region].values
+        p = vals(np.zeros((1, self.n)))[0]
+        P = np.stack([vals(np.eye(self.n)[i:i + 1])[0] - p for i in range(self.n)], axis=1)
+        return P, p
+
+    def lower_bound(self, x0: np.ndarray) -> int:
+        """The smallest N not excluded by the support-function test (0 for non-linear systems)."""
+        if not self.linear or not self.goal_dnf:
+            return 0
+        A, B, c = self._affine
+        affine = {r: self._coord_affine(r) for conj in self.goal_dnf for r, pos in conj if pos}
+        free = np.asarray(x0, float)
+        gens: list[np.ndarray] = []  # B, A B, A^2 B, ... (A^j B multiplies u_{N-1-j})
+        Aj_B = B.copy()
+        for N in range(self.deadline + 1):
+            if N > 0:
+                free = A @ free + c
+                gens.append(Aj_B)
+                Aj_B = A @ Aj_B
+            for conj in self.goal_dnf:
+                if all(self._literal_possible(r, pos, affine.get(r), free, gens) for r, pos in conj):
+                    return N
+        return self.deadline + 1
+
+    def _literal_possible(self, region: str, positive: bool, aff, free, gens) -> bool:
+        if not positive:
+            return True  # no bound from "outside a region"
+        P, p = aff
+        R = self.regions[region]
+        y = P @ free + p
+        if R.kind == "ball":
+            diff = np.asarray(R.centre) - y
+            gap = float(np.linalg.norm(diff)) - R.radius
+        else:
+            proj = np.clip(y, R.low, R.high)
+            diff = proj - y
+            gap = float(np.linalg.norm(diff))
+        if gap <= 0:
+            return True
+        if not gens:
+            return False
+        e = diff / np.linalg.norm(diff)
+        d = P.T @ e
+        g = np.stack([G.T @ d for G in gens])  # [N, m]
+        reach = float(np.sum(np.maximum(g * self.ulow, g * self.uhigh)))
+        return gap <= reach + 1e-9 * (1 + abs(gap))
+
+    # ------------------------------------------------------------------ NLP
+    def _coords(self, region: str):
+        if region not in self._coords_fn:
+            R = self.regions[region]
+            self._coords_fn[region] = compile_function([ast.Name(c, Span()) for c in R.coords],
+                                                       self.system.symbols, casadi_namespace())
+        return self._coords_fn[region]
+
+    def _literal_exprs(self, region: str, positive: bool, x) -> list:
+        """Expressions that are all >= 0 exactly when the literal holds with margin."""
+        ca = self.ca
+        R = self.regions[region]
+        v = ca.vertcat(*self._coords(region)([x[i] for i in range(self.n)], ()))
+        if R.kind == "ball":
+            d2 = ca.sumsqr(v - ca.DM(list(R.centre)))
+            if positive:
+                return [(R.radius - MARGIN) ** 2 - d2]
+            return [d2 - (R.radius + MARGIN) ** 2]
+        lo, hi = ca.DM(list(R.low)), ca.DM(list(R.high))
+        if positive:
+            return [v - lo - MARGIN, hi - v - MARGIN]  # vector expressions, each entry >= 0
+        k = v.shape[0]
+        out = lo[0] - v[0] - MARGIN
+        for i in range(k):
+            out = ca.fmax(out, ca.fmax(lo[i] - v[i] - MARGIN, v[i] - hi[i] - MARGIN))
+        return [out]
+
+    def _formula_expr(self, f, x):
+        """One scalar expression >= 0 when the normalised formula holds (fmin/fmax)."""
+        ca = self.ca
+        kind = f[0]
+        if kind == "const":
+            return ca.DM(1.0 if f[1] else -1.0)
+        if kind == "lit":
+            parts = self._literal_exprs(f[1], f[2], x)
+            flat = [p[i] for p in parts for i in range(p.shape[0])]
+            out = flat[0]
+            for p in flat[1:]:
+                out = ca.fmin(out, p)
+            return out
+        subs = [self._formula_expr(g, x) for g in f[1]]
+        out = subs[0]
+        for s in subs[1:]:
+            out = ca.fmin(out, s) if kind == "and" else ca.fmax(out, s)
+        return out
+
+    def _safe_exprs(self, x) -> list:
+        f = self.safe_nnf
+        if f[0] == "lit":
+            return self._literal_exprs(f[1], f[2], x)
+        if f[0] == "and" and all(g[0] == "lit" for g in _flatten_and(f)):
+            return [e for g in _flatten_and(f) for e in self._literal_exprs(g[1], g[2], x)]
+        return [self._formula_expr(f, x)]
+
+    def _solver(self, N: int, j: int):
+        key = (N, j)
+        if key in self._solvers:
+            return self._solvers[key]
+        ca = self.ca
+        n, m = self.n, self.m
+        x0 = ca.SX.sym("x0", n)
+        X = ca.SX.sym("X", n, N)
+        U = ca.SX.sym("U", m, N)
+        sg = ca.SX.sym("sg", 1)
+        has_avoid = self.safe_nnf is not None
+        sa = ca.SX.sym("sa", N if has_avoid else 0)
+        fin_lo = np.isfinite(self.low)
+        fin_hi = np.isfinite(self.high)
+        span = np.where(fin_lo & fin_hi, self.high - self.low, 1.0)
+        sb = ca.SX.sym("sb", N)
+        g, lbg, ubg = [], [], []
+        prev = x0
+        for k in range(N):
+            xk = X[:, k]
+            g.append(xk - self.step_ca(prev, U[:, k]))
+            lbg += [0.0] * n
+            ubg += [0.0] * n
+            prev = xk
+            # state space, normalised by its width, with one slack per step
+            for i in range(n):
+                if fin_lo[i]:
+                    g.append((xk[i] - self.low[i]) / span[i] - MARGIN + sb[k])
+                    lbg.append(0.0)
+                    ubg.append(ca.inf)
+                if fin_hi[i]:
+                    g.append((self.high[i] - xk[i]) / span[i] - MARGIN + sb[k])
+                    lbg.append(0.0)
+                    ubg.append(ca.inf)
+            if has_avoid:
+                for e in self._safe_exprs(xk):
+                    g.append(e + sa[k])
+                    lbg += [0.0] * e.shape[0]
+                    ubg += [ca.inf] * e.shape[0]
+        xN = X[:, N - 1]
+        for region, pos in self.goal_dnf[j]:
+            for e in self._literal_exprs(region, pos, xN):
+                g.append(e + sg)
+                lbg += [0.0] * e.shape[0]
+                ubg += [ca.inf] * e.shape[0]
+        w = ca.vertcat(ca.vec(X), ca.vec(U), sg, sa, sb)
+        obj = sg + ca.sum1(sa) + ca.sum1(sb) if has_avoid else sg + ca.sum1(sb)
+        nlp = {"x": w, "p": x0, "f": obj, "g": ca.vertcat(*g)}
+        solver = ca.nlpsol(f"oracle_N{N}_{j}", "ipopt", nlp, self.opts)
+        # variable bounds: X within a generous hull of the state space (keeps finite-escape
+        # systems finite), U within the action box, slacks >= 0
+        big = np.where(np.isfinite(span), span, 1e6)
+        xl = np.where(fin_lo, self.low - big, -np.inf)
+        xh = np.where(fin_hi, self.high + big, np.inf)
+        nw = w.shape[0]
+        lbx = np.concatenate([np.tile(xl, N), np.tile(self.ulow, N), np.zeros(nw - n * N - m * N)])
+        ubx = np.concatenate([np.tile(xh, N), np.tile(self.uhigh, N), np.full(nw - n * N - m * N, np.inf)])
+        entry = {"solver": solver, "lbx": lbx, "ubx": ubx, "lbg": np.asarray(lbg, float),
+                 "ubg": np.asarray([float(v) for v in ubg]), "nw": nw}
+        self._solvers[key] = entry
+        return entry
+
+    def _guess(self, N: int, j: int, x0: np.ndarray, own: dict) -> np.ndarray:
+        n, m = self.n, self.m
+        prev = self._warm.get((N, j))
+        if prev is not None:
+            return prev["x"]
+        lower = own.get(N - 1)
+        nw = self._solver(N, j)["nw"]
+        w = np.zeros(nw)
+        if lower is not None and N > 1:
+            Xp = lower["x"][: n * (N - 1)].reshape(N - 1, n)
+            Up = lower["x"][n * (N - 1): n * (N - 1) + m * (N - 1)].reshape(N - 1, m)
+            X = np.vstack([Xp, Xp[-1:]])
+            U = np.vstack([Up, np.zeros((1, m))])
+        else:
+            X = np.tile(x0, (N, 1))
+            U = np.zeros((N, m))
+        U = np.clip(U, self.ulow, self.uhigh)
+        X = np.where(np.isfinite(X), X, 0.0)
+        w[: n * N] = X.ravel()
+        w[n * N: n * N + m * N] = U.ravel()
+        w[n * N + m * N:] = 1e-2
+        return w
+
+    def _try(self, N: int, x0: np.ndarray, own: dict):
+        """Solve every disjunct at N; ``(status, actions)`` with status ok / no / failed."""
+        failed = False
+        for j in range(len(self.goal_dnf)):
+            entry = self._solver(N, j)
+            w0 = self._guess(N, j, x0, own)
+            try:
+                sol = entry["solver"](x0=w0, p=x0, lbx=entry["lbx"], ubx=entry["ubx"],
+                                      lbg=entry["lbg"], ubg=entry["ubg"])
+                stats = entry["solver"].stats()
+                status = stats.get("return_status", "unknown")
+                w = np.asarray(sol["x"]).ravel()
+                obj = float(sol["f"])
+            except Exception:  # noqa: BLE001 - IPOPT/CasADi errors are solver failures, never crashes
+                failed = True
+                continue
+            if not np.all(np.isfinite(w)) or not math.isfinite(obj):
+                failed = True
+                continue
+            if status not in GOOD_STATUSES:
+                failed = True
+                # a failed solve can still carry a feasible point: let the replay judge it
+            own[N] = {"x": w}
+            self._warm[(N, j)] = {"x": w}
+            if obj <= FEASIBLE_TOL:
+                n, m = self.n, self.m
+                U = w[n * N: n * N + m * N].reshape(N, m)
+                return "ok", U, failed
+        return ("failed" if failed else "no"), None, failed
+
+    # ------------------------------------------------------------------ replay
+    def replay(self, x0: np.ndarray, actions: np.ndarray) -> tuple[np.ndarray, bool]:
+        """Roll ``actions`` out with the simulator's step; ``(trajectory [N+1, n], passes)``."""
+        x = np.asarray(x0, float)[None, :]
+        traj = [x[0]]
+        for u in np.asarray(actions, float).reshape(-1, self.m):
+            x = self.step_np(x, np.clip(u, self.ulow, self.uhigh)[None, :])
+            traj.append(np.asarray(x[0], float))
+        tr = np.asarray(traj)
+        return tr, self.trajectory_ok(tr)
+
+    def trajectory_ok(self, tr: np.ndarray) -> bool:
+        if not np.all(np.isfinite(tr)):
+            return False
+        N = tr.shape[0] - 1
+        later = tr[1:]
+        if np.any(later < self.low) or np.any(later > self.high):
+            return False
+        t = self.task.model
+        if not bool(offline.satisfied(t.asap, tr[None])[0, N]):
+            return False
+        if t.avoid is not None and N > 0 and bool(np.any(offline.satisfied(t.avoid, tr[None])[0, 1:])):
+            return False
+        return True
+
+    # ------------------------------------------------------------------ public
+    def solve(self, x0: Sequence[float], index: int = 0) -> StateResult:
+        """The minimum number of steps from ``x0`` (see the module docstring)."""
+        start = time.perf_counter()
+        x0 = np.asarray(x0, float).ravel()
+        if x0.shape != (self.n,) or not np.all(np.isfinite(x0)):
+            return StateResult(index, x0, None, "nan", False, seconds=time.perf_counter() - start)
+        tr0 = x0[None, :]
+        if self.trajectory_ok(tr0):
+            return StateResult(index, x0, 0, "solved", True, actions=np.zeros((0, self.m)),
+                               trajectory=tr0, seconds=time.perf_counter() - start)
+        lb = max(1, self.lower_bound(x0))
+        failures = solves = 0
+        own: dict[int, dict] = {}
+        for N in range(lb, self.deadline + 1):
+            status, U, failed = self._try(N, x0, own)
+            solves += 1
+            failures += int(failed)
+            if status == "ok":
+                tr, passes = self.replay(x0, U)
+                if not np.all(np.isfinite(tr)):
+                    return StateResult(index, x0, None, "nan", False, failures, solves, lb,
+                                       seconds=time.perf_counter() - start)
+                return StateResult(index, x0, N, "solved", passes, failures, solves, lb, U, tr,
+                                   time.perf_counter() - start)
+        return StateResult(index, x0, None, "solver_failed" if failures else "infeasible", False, failures,
+                           solves, lb, seconds=time.perf_counter() - start)
+
+    def solve_many(self, states: np.ndarray, indices: Optional[Sequence[int]] = None) -> list[StateResult]:
+        """Solve ``states`` in nearest-neighbour order (warm starts), results in input order."""
+        states = np.asarray(states, float).reshape(-1, self.n)
+        idx = list(range(len(states))) if indices is None else list(indices)
+        order = nearest_neighbour_order(states, self.system)
+        out: list[Optional[StateResult]] = [None] * len(states)
+        for k in order:
+            out[k] = self.solve(states[k], idx[k])
+        return out  # type: ignore[return-value]
+
+
+def _flatten_and(f) -> list:
+    if f[0] == "and":
+        return [h for g in f[1] for h in _flatten_and(g)]
+    return [f]
+
+
+def nearest_neighbour_order(states: np.ndarray, system) -> list[int]:
+    """A greedy nearest-neighbour tour of the states (scaled by the init box), for warm starts."""
+    n = len(states)
+    if n == 0:
+        return []
+    width = np.where(system.init_high > system.init_low, system.init_high - system.init_low, 1.0)
+    z = (states - system.init_low) / width
+    z = np.where(np.isfinite(z), z, 0.0)
+    left = np.ones(n, bool)
+    cur = int(np.argmin(np.sum(z, axis=1)))
+    order = [cur]
+    left[cur] = False
+    for _ in range(n - 1):
+        d = np.sum((z - z[cur]) ** 2, axis=1)
+        d[~left] = np.inf
+        cur = int(np.argmin(d))
+        order.append(cur)
+        left[cur] = False
+    return order
+
+
+# --------------------------------------------------------------------------- statistics
+def wilson_interval(k: int, n: int, z: float = 1.959963984540054) -> tuple[float, float]:
+    """The 95% Wilson score interval of a proportion ``k / n``."""
+    if n <= 0:
+        return (0.0, 1.0)
+    p = k / n
+    den = 1 + z * z / n
+    centre = (p + z * z / (2 * n)) / den
+    half = z * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / den
+    lo = 0.0 if k == 0 else max(0.0, centre - half)
+    hi = 1.0 if k == n else min(1.0, centre + half)
+    return (lo, hi)
+
+
+@dataclass
+class OracleReport:
+    """Results over a set of initial states: minimum steps, statuses and the success ceiling."""
+
+    file: str
+    task: str
+    system: str
+    label: str
+    deadline: int
+    tolerances: tuple[int, ...]
+    seed: Optional[int]
+    results: list[StateResult]
+    seconds: float = 0.0
+    workers: int = 1
+    extra: dict = field(default_factory=dict)
+
+    @property
+    def steps(self) -> np.ndarray:
+        """Minimum steps per state (``inf`` where none up to the deadline or not solved)."""
+        return np.array([np.inf if r.steps is None else r.steps for r in self.results], float)
+
+    def counts(self) -> dict[str, int]:
+        out = {"solved": 0, "infeasible": 0, "solver_failed": 0, "nan": 0}
+        for r in self.results:
+            out[r.status] = out.get(r.status, 0) + 1
+        out["unverified"] = sum(1 for r in self.results if r.status == "solved" and not r.verified)
+        out["states_with_solver_failures"] = sum(1 for r in self.results if r.failures)
+        out["solver_failures"] = sum(r.failures for r in self.results)
+        return out
+
+    def ceiling(self, tolerance: int) -> dict:
+        """Share of states with a minimum time <= tolerance, with its 95% Wilson interval."""
+        n = len(self.results)
+        k = int(np.sum(self.steps <= tolerance))
+        lo, hi = wilson_interval(k, n)
+        return {"tolerance": int(tolerance), "count": k, "states": n,
+                "rate": k / n if n else float("nan"), "ci95": [lo, hi]}
+
+    def distribution(self) -> dict:
+        s = self.steps[np.isfinite(self.steps)]
+        if s.size == 0:
+            return {"reached": 0}
+        q = np.percentile(s, [0, 25, 50, 75, 100])
+        hist = {int(v): int(c) for v, c in zip(*np.unique(s.astype(int), return_counts=True))}
+        return {"reached": int(s.size), "min": float(q[0]), "p25": float(q[1]), "median": float(q[2]),
+                "p75": float(q[3]), "max": float(q[4]), "mean": float(np.mean(s)), "histogram": hist}
+
+    def to_dict(self, with_states: bool = True, with_actions: bool = False) -> dict:
+        d = {"file": self.file, "task": self.task, "system": self.system,
+             "label": self.label, "bound": f"oracle ({self.label})", "deadline": self.deadline,
+             "episodes": len(self.results), "seed": self.seed, "workers": self.workers,
+             "seconds": round(self.seconds, 3),
+             "unreachable_within_deadline": int(np.sum(~np.isfinite(self.steps))),
+             "status": self.counts(), "distribution": self.distribution(),
+             "ceiling": [self.ceiling(t) for t in self.tolerances]}
+        if with_states:
+            d["states"] = [r.to_dict(with_actions) for r in self.results]
+        d.update(self.extra)
+        return d
+
+
+# --------------------------------------------------------------------------- drivers
+def _worker(payload):
+    """Process entry: re-load the spec from its text (programs hold compiled closures)."""
+    import asap_dsl
+
+    source, name, task, states, indices, ipopt = payload
+    prog = asap_dsl.loads(source, name)
+    oracle = Oracle(prog, task, ipopt)
+    return [r.to_dict(with_actions=True) for r in oracle.solve_many(states, indices)]
+
+
+def run(prog, task: Optional[str] = None, episodes: int = 1000, seed: int = EVAL_SEED, workers: int = 1,
+        states: Optional[np.ndarray] = None, ipopt_options: Optional[dict] = None) -> OracleReport:
+    """The oracle over ``episodes`` evaluation states (or the given ``states``).
+
+    ``workers > 1`` splits the nearest-neighbour tour into contiguous chunks solved in separate
+    processes (each builds its own solvers).
+    """
+    start = time.perf_counter()
+    oracle = Oracle(prog, task, ipopt_options)  # validates system and task up front
+    t = oracle.task.model
+    if states is None:
+        states = evaluation_states(prog.system, episodes, seed=seed, avoid=t.avoid)
+        used_seed: Optional[int] = seed
+    else:
+        used_seed = None
+    states = np.asarray(states, float).reshape(-1, oracle.n)
+    workers = max(1, min(int(workers), len(states)))
+    if workers == 1:
+        results = oracle.solve_many(states)
+    else:
+        import multiprocessing as mp
+
+        order = nearest_neighbour_order(states, prog.system)
+        chunks = np.array_split(np.asarray(order), workers)
+        payloads = [(prog.source, prog.file, oracle.task_name, states[c], [int(i) for i in c], ipopt_options)
+                    for c in chunks if len(c)]
+        method = "fork" if "fork" in mp.get_all_start_methods() else "spawn"
+        with mp.get_context(method).Pool(len(payloads)) as pool:
+            parts = pool.map(_worker, payloads)
+        by_index = {d["index"]: StateResult.from_dict(d) for part in parts for d in part}
+        results = [by_index[i] for i in range(len(states))]
+        for r in results:  # trajectories are not shipped back: replay here (cheap)
+            if r.actions is not None:
+                r.trajectory, _ = oracle.replay(r.x0, r.actions)
+    return OracleReport(prog.file, oracle.task_name, prog.system.name, oracle.label, oracle.deadline,
+                        oracle.tolerances, used_seed, results, time.perf_counter() - start, workers)
+
+
+def minimum_steps(prog, x0: Sequence[float], task: Optional[str] = None) -> StateResult:
+    """The oracle's answer for one initial state."""
+    return Oracle(prog, task).solve(x0)
+
+
+def deadline_infeasible(prog, task_name: Optional[str] = None, samples: int = 32,
+                        seed: int = 0, workers: int = 2) -> list[tuple[np.ndarray, str]]:
+    """Sampled initial states that cannot reach ``asap`` within the deadline (for ``lint --deep``).
+
+    Returns ``(state, reason)`` pairs, the reason a few words; empty when every sample reaches the
+    goal in time. Raises :class:`OracleUnsupported` for a black-box system or a non-region task
+    (the caller decides whether to say so or stay silent).
+    """
+    oracle = Oracle(prog, task_name)
+    states = evaluation_states(prog.system, samples, seed=seed, avoid=oracle.task.model.avoid)
+    report = run(prog, oracle.task_name, states=states, workers=workers)
+    how = {
+        "infeasible": "proved by a convex problem" if oracle.label == "exact" else "a local search (IPOPT) found no way",
+        "solver_failed": "the solver failed",
+        "nan": "the dynamics give non-finite values",
+    }
+    return [(r.x0, how[r.status]) for r in report.results if r.status in how]
+
+
+__all__ = ["MARGIN", "Oracle", "OracleReport", "OracleUnsupported", "StateResult", "deadline_infeasible",
+           "minimum_steps", "nearest_neighbour_order", "run", "wilson_interval"]

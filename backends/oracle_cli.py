@@ -1,0 +1,132 @@
+"""``asapc oracle FILE [--task T] [--episodes N] [--workers K] [--seed S] [--format json]``.
+
+The lead wires these two functions into ``asapc`` (argparse)::
+
+    p = subparsers.add_parser("oracle", help="minimum steps per initial state (CasADi)")
+    add_oracle_arguments(p)
+    p.set_defaults(func=oracle_command)   # oracle_command(args) -> exit status
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from typing import Optional, TextIO
+
+from asap_dsl.sampling import EVAL_SEED
+
+
+def _positive_int(text: str) -> int:
+    try:
+        v = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a whole number, got '{text}'") from None
+    if v < 1:
+        raise argparse.ArgumentTypeError(f"expected a number of at least 1, got {v}")
+    return v
+
+
+def add_oracle_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("file", metavar="FILE", help="the .asap spec (an ode or map system)")
+    parser.add_argument("--task", default=None, help="the task (default: every task of the file)")
+    parser.add_argument("--episodes", type=_positive_int, default=1000,
+                        help="initial states, the same as `asapc eval` draws (default 1000)")
+    parser.add_argument("--workers", type=_positive_int, default=1,
+                        help="processes, each solving a chunk of the states (default 1)")
+    parser.add_argument("--seed", type=int, default=EVAL_SEED,
+                        help=f"seed of the initial states (default {EVAL_SEED}, as `asapc eval`)")
+    parser.add_argument("--format", choices=("text", "json"), default="text", help="output format")
+    parser.add_argument("--states", action="store_true",
+                        help="with --format json: include every state's x0, steps, status and actions")
+
+
+def _pct(x: float) -> str:
+    return f"{100 * x:5.1f}%"
+
+
+def render_text(report, out: TextIO) -> None:
+    d = report.to_dict(with_states=False)
+    c = d["status"]
+    n = d["episodes"]
+    out.write(f"{d['file']}: task {d['task']} (system {d['system']}) — oracle ({d['label']}), "
+              f"{n} initial states, seed {d['seed']}, deadline {d['deadline']} steps, "
+              f"{d['seconds']:.1f} s on {d['workers']} worker(s)\n")
+    if d["label"] == "local":
+        out.write("  IPOPT local optima: each minimum is an upper bound on that state's true minimum time\n")
+    else:
+        out.write("  convex feasibility problems: the minima are exact\n")
+    out.write("\n  tolerance  ceiling   95% CI            states\n")
+    for row in d["ceiling"]:
+        lo, hi = row["ci95"]
+        out.write(f"  {row['tolerance']:>9}  {_pct(row['rate'])}  [{_pct(lo)}, {_pct(hi)}]  "
+                  f"{row['count']:>5}/{row['states']}\n")
+    dist = d["distribution"]
+    out.write("\n  minimum steps: ")
+    if dist.get("reached", 0):
+        out.write(f"min {dist['min']:.0f}, 25% {dist['p25']:.0f}, median {dist['median']:.0f}, "
+                  f"75% {dist['p75']:.0f}, max {dist['max']:.0f}, mean {dist['mean']:.2f}\n")
+        hist = dist["histogram"]
+        top = max(hist.values())
+        out.write("  steps  states\n")
+        for k in sorted(hist):
+            bar = "#" * max(1, round(40 * hist[k] / top))
+            out.write(f"  {k:>5}  {hist[k]:>6}  {bar}\n")
+    else:
+        out.write("no state reaches the goal\n")
+    out.write(f"\n  unreachable within the deadline: {d['unreachable_within_deadline']}/{n}"
+              f" (infeasible {c['infeasible']}, solver failed {c['solver_failed']}, nan {c['nan']})\n")
+    out.write(f"  solver failures: {c['solver_failures']} solves on {c['states_with_solver_failures']} states; "
+              f"unverified by replay: {c['unverified']}\n")
+
+
+def oracle_command(args: argparse.Namespace, out: Optional[TextIO] = None, err: Optional[TextIO] = None) -> int:
+    """Run the oracle; exit 0 on success, 1 on a spec error or an unsupported system/task."""
+    import asap_dsl
+    from asap_dsl.backends.oracle import OracleUnsupported, run
+
+    out = out or sys.stdout
+    err = err or sys.stderr
+    try:
+        prog = asap_dsl.load(args.file)
+    except asap_dsl.SpecError as e:
+        err.write(f"{e}\n")
+        return 1
+    tasks = [args.task] if args.task else list(prog.tasks)
+    if args.task and args.task not in prog.tasks:
+        try:
+            prog.task(args.task)
+        except KeyError as e:
+            err.write(f"error: {e.args[0]}\n")
+            return 1
+    if not tasks:
+        err.write(f"error: {args.file} has no task\n")
+        return 1
+    reports = []
+    for t in tasks:
+        try:
+            rep = run(prog, t, episodes=args.episodes, seed=args.seed, workers=args.workers)
+        except OracleUnsupported as e:
+            err.write(f"error: {args.file}: task {t}: {e}\n")
+            return 1
+        reports.append(rep)
+        if args.format == "text":
+            if len(reports) > 1:
+                out.write("\n")
+            render_text(rep, out)
+    if args.format == "json":
+        payload = [r.to_dict(with_states=getattr(args, "states", False), with_actions=getattr(args, "states", False))
+                   for r in reports]
+        json.dump(payload[0] if args.task else {"file": args.file, "tasks": payload}, out, indent=2)
+        out.write("\n")
+    return 0
+
+
+def main(argv: Optional[list[str]] = None) -> int:  # for `python -m asap_dsl.backends.oracle_cli`
+    parser = argparse.ArgumentParser(prog="asapc oracle", description="minimum-time oracle (CasADi + IPOPT)")
+    add_oracle_arguments(parser)
+    return oracle_command(parser.parse_args(argv))
+
+
+if __name__ == "__main__":  # pragma: no cover
+    raise SystemExit(main())
