@@ -1,0 +1,112 @@
+"""`asapc lint` and `asapc show`: exit codes, output formats, and no traceback on bad input."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+import pytest
+
+from asap_dsl import cli
+from conftest import ROOT
+
+SPECS = sorted(str(p) for p in (ROOT / "specs").glob("*.asap"))
+EXAMPLE = str(ROOT / "examples" / "double_integrator.asap")
+BROKEN = str(ROOT / "examples" / "broken.asap")
+
+
+def run(capsys, *argv):
+    code = cli.main(list(argv))
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
+def test_lint_benchmark_specs_and_example_pass(capsys):
+    code, out, _ = run(capsys, "lint", *SPECS, EXAMPLE)
+    assert code == 0
+    assert f"{len(SPECS) + 1} files checked: 0 errors" in out
+
+
+def test_lint_broken_example_reports_every_error_at_once(capsys):
+    code, out, _ = run(capsys, "lint", BROKEN)
+    assert code == 1
+    for c in ("E101", "E104", "E106", "E107", "E108", "E111", "E115"):
+        assert c in out
+    # positioned, with the line and a caret
+    assert f"{BROKEN}:20:17: error E101 unknown-name: unknown region 'hom'" in out
+    assert "did you mean 'home'?" in out
+    assert "^^^" in out
+
+
+def test_lint_json_is_machine_readable(capsys):
+    code, out, _ = run(capsys, "lint", "--format", "json", BROKEN)
+    assert code == 1
+    data = json.loads(out)
+    assert data["errors"] == 7
+    first = data["diagnostics"][0]
+    assert set(first) >= {"code", "name", "severity", "message", "file", "line", "column", "end_line", "end_column"}
+    lines = [(d["line"], d["column"]) for d in data["diagnostics"]]
+    assert lines == sorted(lines)
+
+
+def test_lint_strict_fails_on_warnings_only(capsys):
+    spec = str(ROOT / "specs" / "bicycle.asap")  # W201: the paper's balls overlap
+    assert run(capsys, "lint", spec)[0] == 0
+    assert run(capsys, "lint", "--strict", spec)[0] == 1
+
+
+@pytest.mark.parametrize("make", ["missing", "directory", "binary", "empty"])
+def test_lint_bad_files_are_positioned_errors(capsys, tmp_path, make):
+    path = tmp_path / "x.asap"
+    if make == "directory":
+        path.mkdir()
+    elif make == "binary":
+        path.write_bytes(b"\xff\xfe\x00garbage")
+    elif make == "empty":
+        path.write_text("  \n")
+    code, out, err = run(capsys, "lint", str(path))
+    assert code == 1
+    assert "E002" in out and str(path) in out
+    assert "Traceback" not in out + err
+
+
+def test_show_prints_the_full_specification(capsys):
+    code, out, _ = run(capsys, "show", str(ROOT / "specs" / "dc_motor.asap"))
+    assert code == 0
+    assert "(eventually[0, 30] in goal) and (always[0, 30] (not in unsafe))" in out
+    assert "rho bounds" in out and "r_sat" in out and "horizon        30 steps" in out
+    for name in ("theta", "omega", "i", "V", "goal", "unsafe", "reach", "reach_avoid"):
+        assert name in out
+
+
+def test_show_json_r_sat_satisfies_the_theorem(capsys):
+    code, out, _ = run(capsys, "show", "--format", "json", str(ROOT / "specs" / "dc_motor.asap"))
+    assert code == 0
+    data = json.loads(out)
+    task = data["tasks"]["reach"]
+    lo, hi = task["rho_bounds"]
+    scale = task["rho_scale"]
+    k_max = task["episode"][1]
+    assert scale == pytest.approx(1 / (hi - lo))
+    assert task["r_sat"] > hi * scale + (hi - lo) * scale * k_max
+
+
+def test_show_unknown_task_is_a_usage_error(capsys):
+    with pytest.raises(SystemExit) as info:
+        cli.main(["show", "--task", "rech", str(ROOT / "specs" / "dc_motor.asap")])
+    assert info.value.code == 2
+    assert "did you mean 'reach'?" in capsys.readouterr().err
+
+
+def test_show_spec_with_errors_exits_1_with_the_report(capsys):
+    code, out, err = run(capsys, "show", BROKEN)
+    assert code == 1
+    assert "E101" in err and "Traceback" not in err
+
+
+def test_console_script_bad_flag_no_traceback():
+    proc = subprocess.run([sys.executable, "-m", "asap_dsl.cli", "lint", "--no-such-flag", EXAMPLE],
+                          capture_output=True, text=True)
+    assert proc.returncode == 2
+    assert "unrecognized arguments" in proc.stderr and "Traceback" not in proc.stderr
