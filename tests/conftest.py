@@ -14,7 +14,12 @@ from asap_dsl.program import analyse
 
 ROOT = Path(__file__).resolve().parent.parent
 SPECS = sorted((ROOT / "specs").glob("*.asap"))
-LANGUAGE_MD = Path(os.environ.get("ASAP_LANGUAGE_MD", ROOT.parent / "shared" / "design" / "LANGUAGE.md"))
+# The language contract: ../shared/design/LANGUAGE.md beside the checkout when there is one, else
+# the copy in tests/data (a test below keeps the two identical).
+SHARED_LANGUAGE_MD = ROOT.parent / "shared" / "design" / "LANGUAGE.md"
+VENDORED_LANGUAGE_MD = ROOT / "tests" / "data" / "LANGUAGE.md"
+LANGUAGE_MD = Path(os.environ.get("ASAP_LANGUAGE_MD",
+                                  SHARED_LANGUAGE_MD if SHARED_LANGUAGE_MD.is_file() else VENDORED_LANGUAGE_MD))
 DOCS = ROOT / "docs" / "language.md"
 
 #: Hypothesis examples per fuzz test; ``ASAP_FUZZ_EXAMPLES`` overrides the defaults.

@@ -182,3 +182,13 @@ def test_number_and_constant_lexemes():
     prog = asap_dsl.loads(src)
     assert prog.system.dt == pytest.approx(0.1)
     assert re.search(r"2\.5e-3", prog.formula("f").text)
+
+
+def test_vendored_language_md_matches_the_contract():
+    """tests/data/LANGUAGE.md stands in for ../shared/design/LANGUAGE.md where that is absent."""
+    from conftest import SHARED_LANGUAGE_MD, VENDORED_LANGUAGE_MD
+
+    if not SHARED_LANGUAGE_MD.is_file():
+        pytest.skip("no ../shared/design/LANGUAGE.md beside this checkout")
+    assert VENDORED_LANGUAGE_MD.read_text(encoding="utf-8") == SHARED_LANGUAGE_MD.read_text(encoding="utf-8"), (
+        "the contract changed: copy ../shared/design/LANGUAGE.md to tests/data/LANGUAGE.md and check the examples")
