@@ -110,3 +110,29 @@ def test_console_script_bad_flag_no_traceback():
                           capture_output=True, text=True)
     assert proc.returncode == 2
     assert "unrecognized arguments" in proc.stderr and "Traceback" not in proc.stderr
+
+
+_CART = """
+system Cart {
+  state p in [-10, 10] init [INIT]
+  state v in [-5, 5]   init [0, 0]
+  action u in [-1, 1]
+  dt = 0.5
+  integrator exact
+  ode { p' = v  v' = u }
+}
+region home = ball([0, 0], 0.2)
+task park { asap in home  deadline 6 }
+"""
+
+
+@pytest.mark.parametrize("init, fires", [("-0.1, 0.1", False), ("8, 9", True)])
+def test_lint_deep_warns_when_the_deadline_is_infeasible(capsys, tmp_path, init, fires):
+    """W208: from p = 8 a unit acceleration needs far more than 6 steps of 0.5 s to park."""
+    spec = tmp_path / "cart.asap"
+    spec.write_text(_CART.replace("INIT", init))
+    code, out, _ = run(capsys, "lint", "--deep", "--samples", "4", str(spec))
+    assert code == 0  # a warning, not an error
+    assert ("W208" in out) == fires
+    if fires:
+        assert "4 of 4 sampled initial states of task 'park'" in out and "proved by a convex problem" in out
