@@ -231,7 +231,7 @@ def build_parser() -> argparse.ArgumentParser:
     lint.add_argument("--strict", action="store_true", help="warnings fail too (exit 1)")
     lint.add_argument("--deep", action="store_true", help="also sample initial states and check with the oracle "
                       "that the deadline is feasible (ode and map systems)")
-    lint.add_argument("--samples", type=_positive_int, default=16, help="initial states sampled by --deep (default 16)")
+    lint.add_argument("--samples", type=positive_int, default=16, help="initial states sampled by --deep (default 16)")
     lint.set_defaults(func=cmd_lint)
 
     show = sub.add_parser("show", help="print the compiled specification: variables, regions, tasks, bounds, r_sat")
@@ -252,7 +252,8 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
-def _positive_int(text: str) -> int:
+def positive_int(text: str) -> int:
+    """argparse type: a whole number of at least 1, in plain words otherwise."""
     try:
         value = int(text)
     except ValueError:

@@ -14,25 +14,16 @@ import json
 import sys
 from typing import Optional, TextIO
 
+from asap_dsl.cli import positive_int
 from asap_dsl.sampling import EVAL_SEED
-
-
-def _positive_int(text: str) -> int:
-    try:
-        v = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a whole number, got '{text}'") from None
-    if v < 1:
-        raise argparse.ArgumentTypeError(f"expected a number of at least 1, got {v}")
-    return v
 
 
 def add_oracle_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("file", metavar="FILE", help="the .asap spec (an ode or map system)")
     parser.add_argument("--task", default=None, help="the task (default: every task of the file)")
-    parser.add_argument("--episodes", type=_positive_int, default=1000,
+    parser.add_argument("--episodes", type=positive_int, default=1000,
                         help="initial states, the same as `asapc eval` draws (default 1000)")
-    parser.add_argument("--workers", type=_positive_int, default=1,
+    parser.add_argument("--workers", type=positive_int, default=1,
                         help="processes, each solving a chunk of the states (default 1)")
     parser.add_argument("--seed", type=int, default=EVAL_SEED,
                         help=f"seed of the initial states (default {EVAL_SEED}, as `asapc eval`)")
