@@ -150,7 +150,7 @@ def cmd_show(args: argparse.Namespace) -> int:
         raise _UsageError(_unknown_task(args.task, prog))
     data = show_data(prog, args.task)
     if args.format == "json":
-        print(json.dumps(data, indent=2, default=_json_default))
+        print(json.dumps(_json_safe(data), indent=2, allow_nan=False))
         return 0
     s = data["system"]
     out = [f"{prog.file}", "", f"system {s['name']}: {s['dynamics']}" + (f", integrator {s['integrator']}" if s["integrator"] else "")
@@ -196,10 +196,15 @@ def cmd_show(args: argparse.Namespace) -> int:
     return 0
 
 
-def _json_default(x):
-    if isinstance(x, float):
-        return str(x)
-    return str(x)
+def _json_safe(x):
+    """Strict JSON: infinite bounds and horizons become the strings "inf" / "-inf"."""
+    if isinstance(x, float) and not math.isfinite(x):
+        return "inf" if x > 0 else ("-inf" if x < 0 else "nan")
+    if isinstance(x, dict):
+        return {k: _json_safe(v) for k, v in x.items()}
+    if isinstance(x, (list, tuple)):
+        return [_json_safe(v) for v in x]
+    return x
 
 
 class _UsageError(Exception):

@@ -136,3 +136,13 @@ def test_lint_deep_warns_when_the_deadline_is_infeasible(capsys, tmp_path, init,
     assert ("W208" in out) == fires
     if fires:
         assert "4 of 4 sampled initial states of task 'park'" in out and "proved by a convex problem" in out
+
+
+def test_show_json_is_strict_json_with_unbounded_values(capsys, tmp_path):
+    spec = tmp_path / "free.asap"
+    spec.write_text("system A { state x in [-1e300, 1e300]  dt = 1  map { x = x } }\n"
+                    "formula up = once x > 0\nregion g = ball([0], 1)\ntask t { asap in g  deadline 3 }")
+    code, out, _ = run(capsys, "show", "--format", "json", str(spec))
+    assert code == 0
+    data = json.loads(out, parse_constant=lambda c: pytest.fail(f"non-standard JSON constant {c}"))
+    assert data["tasks"]["t"]["rho_bounds"] == ["-inf", 1.0]
