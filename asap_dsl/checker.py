@@ -733,6 +733,10 @@ class Checker:
                 errors += 1
             episode = (lo or 1, hi or 1)
         reward = attempt(self.reward, clauses["reward"].value, asap, avoid) if "reward" in clauses else RewardModel()
+        if reward is not None and reward.kind == "distance" and "asap" in clauses and not _regions_of(clauses["asap"].value):
+            self.d.add("E117", "reward distance(...) measures the distance to the `asap` region, but `asap` names no region",
+                       clauses["reward"].span, hint="write `asap in REGION` (possibly with more conditions), or use reward asap or rho")
+            errors += 1
         r_sat = None
         if "r_sat" in clauses:
             value = clauses["r_sat"].value

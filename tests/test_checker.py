@@ -204,3 +204,12 @@ def test_integrator_settings():
     assert asap_dsl.loads(BASE).system.integrator.substeps == 4
     bad = edit(BASE, "dt = 0.1", "dt = 0.1\n  integrator rk4(substeps = 0.5)")
     assert "E117" in [d.code for d in diagnostics(bad)]
+
+
+def test_distance_reward_needs_a_region_in_asap():
+    base = "system A { state x in [-1, 1]  dt = 1  map { x = x } }\nregion g = ball([0], 0.5)\n"
+    asap_dsl.loads(base + "task t { asap in g and x > 0  deadline 3  reward distance(lambda_t = 2) }")
+    with pytest.raises(asap_dsl.SpecError) as info:
+        asap_dsl.loads(base + "task t { asap x > 0.5  deadline 3  reward distance }")
+    (d,) = [d for d in info.value.diagnostics if d.code == "E117"]
+    assert "names no region" in d.message and d.line == 3
