@@ -140,7 +140,8 @@ def sort(diagnostics: Iterable[Diagnostic]) -> list[Diagnostic]:
 
 def format_diagnostic(d: Diagnostic, source: Optional[str]) -> str:
     """``file:line:col: error E101 unknown-name: message``, then the line and a caret."""
-    head = f"{d.file}:{d.line}:{d.column}: {d.severity} {d.code} {d.name}: {d.message}"
+    where = f"{d.file}:{d.line}:{d.column}" if d.line >= 1 else d.file  # line 0: the file as a whole
+    head = f"{where}: {d.severity} {d.code} {d.name}: {d.message}"
     lines = [head]
     if source is not None and d.line >= 1:
         text_lines = source.splitlines()
