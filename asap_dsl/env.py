@@ -71,7 +71,6 @@ class _Core:
         self.avoid = FormulaTracker(tm.avoid, self.B, self.n, autoreset=autoreset) if tm.avoid is not None else None
         trackers = [self.asap] + ([self.avoid] if self.avoid else []) + self.reward.trackers
         self.trackers = trackers
-        self.need_cand = autoreset and any(not t.static for t in trackers)
         self.kmin, self.kmax = tm.episode
         self.low, self.high = sysm.state_low, sysm.state_high
         self.observe_time = "time" in tm.observe
@@ -147,12 +146,9 @@ class _Core:
         finite = np.isfinite(new).all(axis=1)
         safe = new if finite.all() else np.where(finite[:, None], new, self.states)
         oob = ((safe < self.low) | (safe > self.high)).any(axis=1)
-        cand = kc = None
-        if self.need_cand:
-            cand, kc = self._sample(self.B)
         with np.errstate(over="ignore", invalid="ignore"):  # huge finite states: regions may overflow to inf
             for tr in self.trackers:
-                tr.step(safe, cand)
+                tr.step(safe)
         end = np.zeros(self.B, dtype=np.int64)
         end[oob] = _OOB
         if self.avoid is not None:
@@ -178,13 +174,13 @@ class _Core:
         if self.autoreset and done.any():
             final_obs = obs[done].copy()
             self.final_states = safe[done].copy()  # the true terminal states (obs are float32, clipped)
-            m = int(done.sum())
-            if cand is None:
-                s0, k0 = self._sample(m)
-                cand = np.zeros((self.B, self.n))
-                cand[done] = s0
-                kc = np.zeros(self.B, dtype=np.int64)
-                kc[done] = k0
+            # Fresh episodes for the finished entries only: each tracker resets them and feeds their
+            # initial state with a masked monitor update (the others do not advance).
+            s0, k0 = self._sample(int(done.sum()))
+            cand = np.zeros((self.B, self.n))
+            cand[done] = s0
+            kc = np.zeros(self.B, dtype=np.int64)
+            kc[done] = k0
             self.states = self._set_states(cand, mask=done)
             for tr in self.trackers:
                 tr.restart(done, cand)

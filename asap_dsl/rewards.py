@@ -82,15 +82,15 @@ def _static_eval(node: ir.Formula, states: np.ndarray, boolean: bool) -> np.ndar
 class FormulaTracker:
     """ρ (and ⊨) of a formula at the newest step of B traces, restartable per entry.
 
-    ``restart_all(states)`` starts every trace at ``states`` (step 0); ``step(states, cand)``
-    appends ``states``; ``restart(mask)`` restarts the masked entries at the candidate initial
-    states ``cand`` given to the last ``step``. Results are in ``.rob`` / ``.sat`` (``[B]``).
+    ``restart_all(states)`` starts every trace at ``states`` (step 0); ``step(states)`` appends
+    ``states``; ``restart(mask, cand)`` restarts the masked entries at the initial states
+    ``cand [B, n]`` (only the masked rows are read; without ``cand``, the candidates given to the
+    last ``step`` are used). Results are in ``.rob`` / ``.sat`` (``[B]``).
 
-    Formulas of atoms only are evaluated directly. Others use an online monitor; with
-    ``autoreset`` it holds two lanes per entry: each ``step`` appends the new state to the active
-    lane and starts a fresh trace at the candidate in the standby lane, in the same monitor update,
-    so an entry that finishes in this step continues from its standby lane (the lanes swap) without
-    an extra update of the others. The monitor then does twice the work, never a re-evaluation.
+    Formulas of atoms only are evaluated directly. Others use one online monitor of B entries:
+    a restart is ``reset(mask)`` and ``update(cand, mask=mask)``, which advances the restarted
+    entries only (to their step 0) and leaves the others as they are. ``autoreset`` is accepted
+    for compatibility; every tracker can restart.
     """
 
     def __init__(self, node: ir.Formula, batch: int, n_state: int, *, satisfaction: bool = True,
@@ -105,22 +105,18 @@ class FormulaTracker:
         self._cand = None
         if self.static:
             return
-        lanes = 2 if autoreset else 1
-        self.mon = online.monitor_for(node, lanes * self.B, satisfaction=satisfaction, n_state=n_state)
-        self.active = np.arange(self.B)
-        self.standby = np.arange(self.B) + self.B
-        self._all_rob = np.zeros(lanes * self.B)
-        self._all_sat = np.zeros(lanes * self.B, dtype=bool)
+        self.mon = online.monitor_for(node, self.B, satisfaction=satisfaction, n_state=n_state)
 
     def _eval_static(self, states):
         rob = _static_eval(self.node, states, False)
         sat = _static_eval(self.node, states, True) if self.satisfaction else np.zeros(len(states), bool)
         return rob, sat
 
-    def _update(self, states2):
-        self._all_rob = self.mon.update(states2).copy()
+    def _update(self, states, mask=None):
+        # The monitor returns new arrays on every update (never changed in place): no copies.
+        self.rob = self.mon.update(states, mask=mask)
         if self.satisfaction:
-            self._all_sat = self.mon.satisfied.copy()
+            self.sat = self.mon.satisfied
 
     def restart_all(self, states: np.ndarray) -> None:
         states = np.asarray(states, dtype=np.float64)
@@ -128,14 +124,7 @@ class FormulaTracker:
             self.rob, self.sat = self._eval_static(states)
             return
         self.mon.reset()
-        if self.autoreset:
-            self.active = np.arange(self.B)
-            self.standby = self.active + self.B
-            self._update(np.concatenate([states, states]))
-        else:
-            self._update(states)
-        self.rob = self._all_rob[: self.B].copy()
-        self.sat = self._all_sat[: self.B].copy()
+        self._update(states)
 
     def step(self, states: np.ndarray, cand: Optional[np.ndarray] = None) -> None:
         states = np.asarray(states, dtype=np.float64)
@@ -143,42 +132,25 @@ class FormulaTracker:
         if self.static:
             self.rob, self.sat = self._eval_static(states)
             return
-        if not self.autoreset:
-            self._update(states)
-            self.rob, self.sat = self._all_rob, self._all_sat
-            return
-        if cand is None:
-            raise ValueError("an autoreset tracker needs candidate initial states every step")
-        mask = np.zeros(2 * self.B, dtype=bool)
-        mask[self.standby] = True
-        self.mon.reset(mask)
-        states2 = np.empty((2 * self.B, self.n))
-        states2[self.active] = states
-        states2[self.standby] = cand
-        self._update(states2)
-        self.rob = self._all_rob[self.active]
-        self.sat = self._all_sat[self.active]
+        self._update(states)
 
     def restart(self, mask: np.ndarray, cand: Optional[np.ndarray] = None) -> None:
-        """Restart the masked entries at the candidates of the last ``step`` (their step 0).
-
-        A tracker of atoms only may instead be given the initial states now, as ``cand [B, n]``."""
+        """Restart the masked entries at ``cand [B, n]`` (default: the candidates of the last
+        ``step``); their values become those of their step 0."""
         if not mask.any():
             return
+        c = self._cand if cand is None else cand
+        if c is None:
+            raise ValueError("restart needs the initial states of the restarted entries (cand [B, n])")
+        c = np.asarray(c, dtype=np.float64)
         if self.static:
-            c = self._cand if cand is None else cand
-            r, s = self._eval_static(np.asarray(c, dtype=np.float64)[mask])
+            r, s = self._eval_static(c[mask])
             self.rob = self.rob.copy()
             self.sat = self.sat.copy()
             self.rob[mask], self.sat[mask] = r, s
             return
-        if not self.autoreset:
-            raise ValueError("restart needs a tracker built with autoreset=True")
-        a = self.active[mask].copy()
-        self.active[mask] = self.standby[mask]
-        self.standby[mask] = a
-        self.rob = self._all_rob[self.active]
-        self.sat = self._all_sat[self.active]
+        self.mon.reset(mask)
+        self._update(c, mask=mask)
 
 
 # --------------------------------------------------------------------------------------------

@@ -179,3 +179,107 @@ def test_reset_all_and_step_counters():
     assert mon.t.tolist() == [0, 2]
     mon.reset()
     assert mon.update(np.array([[7.0, 0], [8.0, 0]])).tolist() == [7.0, 8.0]
+
+
+# ---- masked updates -------------------------------------------------------------------------
+
+def run_masked(mon, node, pool, masks, resets, prefix: bool):
+    """Step ``mon`` with ``update(pool[:, k], mask=masks[k])`` (after ``reset(resets[k])``): entry b
+    advances only where masked, taking its next own state from ``pool[b]``; compare every entry
+    (advanced or not) with the offline evaluator on its own trace so far."""
+    B, K = pool.shape[0], len(masks)
+    traces = [[] for _ in range(B)]
+    used = np.zeros(B, dtype=int)
+    last_r, last_s = np.full(B, np.nan), np.zeros(B, dtype=bool)
+    for k in range(K):
+        if resets[k].any():
+            mon.reset(resets[k])
+            for b in np.flatnonzero(resets[k]):
+                traces[b] = []
+        m = masks[k]
+        states = np.full((B, pool.shape[2]), np.nan)  # rows of entries that stay are ignored
+        states[m] = pool[m, used[m]]
+        out = mon.update(states, mask=m)
+        for b in np.flatnonzero(m):
+            traces[b].append(pool[b, used[b]])
+        used[m] += 1
+        assert out.dtype == np.float64 and out.shape == (B,)
+        for b in range(B):
+            if not traces[b]:
+                continue
+            tr = np.array(traces[b])
+            i = 0 if prefix else len(tr) - 1
+            if m[b]:
+                last_r[b] = offline.robustness(node, tr)[i]
+                last_s[b] = offline.satisfied(node, tr)[i]
+            assert out[b] == last_r[b], (ir.to_text(node), b, k, out[b], last_r[b])
+            assert mon.satisfied[b] == last_s[b], (ir.to_text(node), b, k)
+            assert mon.t[b] == len(tr) - 1
+
+
+def _masks_and_resets(data, B, K):
+    seed = data.draw(st.integers(0, 2**31 - 1))
+    rng = np.random.default_rng(seed)
+    p = data.draw(st.sampled_from([0.3, 0.6, 0.9, 1.0]))
+    masks = rng.random((K, B)) < p
+    masks[rng.random(K) < 0.2] = True  # some full updates in between
+    resets = rng.random((K, B)) < data.draw(st.sampled_from([0.0, 0.1, 0.25]))
+    return masks, resets
+
+
+@FUZZ
+@given(formulas(causal=True, max_leaves=4), traces(batch=4, min_T=6, max_T=24), st.data())
+def test_masked_monitor_equals_offline_on_each_entry_trace(node, pool, data):
+    B, K, _ = pool.shape
+    masks, resets = _masks_and_resets(data, B, K)
+    run_masked(online.Monitor(node, B), node, pool, masks, resets, prefix=False)
+
+
+@FUZZ
+@given(prefix_formulas(), traces(batch=3, min_T=4, max_T=16), st.data())
+def test_masked_prefix_monitor_equals_offline(node, pool, data):
+    B, K, _ = pool.shape
+    masks, resets = _masks_and_resets(data, B, K)
+    run_masked(online.PrefixMonitor(node, B), node, pool, masks, resets, prefix=True)
+
+
+def test_masked_long_windows_and_autoreset_pattern():
+    """Long windows; the vector-env pattern (full update, then reset(done) and update(s0, mask=done))
+    keeps the monitor on its aligned fast path; arbitrary masks take it off and back on."""
+    rng = np.random.default_rng(5)
+    B, K = 5, 400
+    pool = rng.normal(size=(B, K, 2))
+    node = ir.And(ir.Historically(ir.Interval(3, 17), X_GT_0),
+                  ir.Since(ir.Interval(2, 30), Y_GT_0, ir.Once(ir.Interval(5, None), X_GT_0)))
+    masks = np.ones((K, B), dtype=bool)
+    resets = np.zeros((K, B), dtype=bool)
+    for k in range(1, K, 2):  # odd k: fresh starts of the entries that finished
+        done = rng.random(B) < 0.08
+        resets[k], masks[k] = done, done
+    mon = online.Monitor(node, B)
+    run_masked(mon, node, pool, masks[:200], resets[:200], prefix=False)
+    assert mon._clock.aligned
+    masks[200:260] = rng.random((60, B)) < 0.5  # arbitrary masks: the general path
+    mon2 = online.Monitor(node, B, satisfaction=False)
+    run_masked(online.Monitor(node, B), node, pool, masks, resets, prefix=False)
+    for k in range(K):
+        mon2.update(pool[:, k])
+    mon2.update(pool[:, 0], mask=np.array([True, False, False, False, False]))
+    assert not mon2._clock.aligned
+    mon2.reset()
+    assert mon2._clock.aligned
+
+
+def test_masked_update_checks_and_all_false_mask():
+    mon = online.Monitor(ir.Once(ir.Interval(0, 2), X_GT_0), 3)
+    with pytest.raises(ValueError, match="bool array"):
+        mon.update(np.zeros((3, 2)), mask=np.array([1, 0, 1]))
+    bad = np.zeros((3, 2))
+    bad[1, 0] = np.nan
+    with pytest.raises(ValueError, match="batch index 1"):
+        mon.update(bad, mask=np.array([False, True, False]))
+    mon.update(bad, mask=np.array([True, False, True]))  # unmasked rows are ignored
+    assert mon.t.tolist() == [0, -1, 0]
+    before = mon.robustness.copy()
+    out = mon.update(np.ones((3, 2)), mask=np.zeros(3, dtype=bool))
+    assert np.array_equal(out, before, equal_nan=True) and mon.t.tolist() == [0, -1, 0]

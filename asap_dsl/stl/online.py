@@ -4,33 +4,58 @@ Public API
 ----------
 ``Monitor(node, batch, *, satisfaction=True, n_state=None)``
     For **causal** formulas (atoms, boolean operators, ``historically``/``once``/``since`` with
-    bounded or unbounded intervals). ``update(states [B, n]) -> [B]`` appends one state to every
-    trace of the batch and returns ρ(s̄, t, φ) at the newest step t (float64), exactly
-    ``offline.robustness(φ, trace so far)[..., t]``. After an update, ``.robustness`` holds the same
-    array and ``.satisfied`` the Boolean semantics (s̄, t) ⊨ φ at that step (computed exactly on
-    booleans, not by the sign; pass ``satisfaction=False`` to skip that work, then ``.satisfied``
-    raises). ``.t`` is the per-entry step index of the newest state (``-1`` before the first update
-    of an entry). ``reset(mask=None)`` starts a new trace for every entry (or those where the bool
-    ``[B]`` mask is True): their next ``update`` is step 0. Resets cost O(1) per entry: every entry
-    has its own start step; nothing is cleared.
+    bounded or unbounded intervals). ``update(states [B, n], mask=None) -> [B]`` appends one state
+    to every trace of the batch and returns ρ(s̄, t, φ) at the newest step t (float64), exactly
+    ``offline.robustness(φ, trace so far)[..., t]``. With a bool ``[B]`` ``mask`` only the masked
+    entries advance by one step (the rows of ``states`` elsewhere are ignored and may hold
+    anything); the others keep their state, their ``t`` and their last returned values. After an
+    update, ``.robustness`` holds the returned array and ``.satisfied`` the Boolean semantics
+    (s̄, t) ⊨ φ at that step (computed exactly from the atoms' ``satisfied``, not by the sign of ρ;
+    pass ``satisfaction=False`` to skip that work, then ``.satisfied`` raises). ``.t`` is the
+    per-entry step index of the newest state (``-1`` before the first update of an entry).
+    ``reset(mask=None)`` starts a new trace for every entry (or those where the bool ``[B]`` mask
+    is True): their next ``update`` is step 0. Resets cost O(1) per entry: nothing is cleared.
+    An autoresetting vector env does ``reset(done)`` then ``update(s0, mask=done)``.
 ``PrefixMonitor(node, batch, *, satisfaction=True, n_state=None)``
     For boolean combinations of ``eventually[a, b] ψ``, ``always[a, b] ψ`` and ``ψ1 until[a, b] ψ2``
     with causal ψ's, and of causal parts (taken at t = 0). ``update`` returns the robustness **at
     time 0 of the prefix** s_0..s_t (windows cut at the end of the prefix), i.e. exactly
     ``offline.robustness(φ, prefix)[..., 0]``: running max/min, frozen once the window has closed.
-    Same ``.robustness``, ``.satisfied``, ``.t``, ``reset`` as ``Monitor``. This is what the ``rho``
-    reward of ``eventually[0, D] asap and always[0, D] not avoid`` needs every step.
+    Same ``update(states, mask=None)``, ``.robustness``, ``.satisfied``, ``.t``, ``reset`` as
+    ``Monitor``. This is what the ``rho`` reward of
+    ``eventually[0, D] asap and always[0, D] not avoid`` needs every step.
 ``monitor_for(node, batch, **kw)``
     ``Monitor`` for a causal formula, ``PrefixMonitor`` where that applies, else ``ValueError``.
 
 Cost: O(1) amortised per node per step, vectorised over the batch (no per-entry Python objects).
-A bounded past window ``[lo, hi]`` keeps ring buffers of the child's values aligned to a global
-step counter and uses online van Herk/Gil-Werman: blocks of the window length ``w = hi - lo + 1``;
-a running prefix aggregate (restarted at block starts and at each entry's own step 0), and the
-block's suffix aggregates computed once when the block completes (one vectorised ``accumulate``
-every ``w`` steps). A window ``[max(g-hi, start_b), g-lo]`` then spans at most two blocks and is
-``op(suffix[start_b], prefix[g-lo])``. Unbounded past windows are running min/max of the value
-delayed by ``lo``. ``since`` is rewritten exactly (see :mod:`asap_dsl.stl.offline`)::
+
+Layout. Robustness and satisfaction run in **one pass** over ``L * B`` columns (``L = 2`` lanes
+with satisfaction, else 1): lane 0 holds ρ, lane 1 the Boolean value encoded as ``+1``/``-1``
+(``±inf`` for ``true``/``false`` and for empty windows). On that encoding ``not``/``and``/``or``/
+``->``/min/max windows are negation/min/max exactly as on booleans, so both lanes share every
+numpy call, and ``satisfied = lane1 > 0`` is exact (lane 1 is never 0; it comes from the atoms'
+``satisfied``, never from ρ). The formula is compiled into a flat, topologically ordered list of
+bound step methods, each writing into its own preallocated output buffer (``out=`` arguments).
+
+Clock. Every column has its own step counter ``n`` (the position of its newest value in its ring
+buffers) and its start ``start`` (``t = n - start``). While all counters are equal (no masked
+update, or masked updates of freshly reset entries only: these are relabelled to the common
+counter) the monitor is *aligned* and runs the fast path: one scalar counter ``g``, scalar ring
+indices, steady-state windows with scalar block arithmetic, and the minimum ``t`` kept in O(1) so
+restart checks are skipped when no entry is young. Otherwise (arbitrary masks) the general path
+computes every operator for all columns as if they advanced, with per-column ring indices, and
+commits the new counters and the running accumulators (unbounded windows, since, prefix leaves)
+for the masked columns only. Ring slots written for an unmasked column are the slots of its next
+step, overwritten when it really advances and never read before, so the speculative writes are
+harmless; a full ``reset()`` realigns everything.
+
+Windows. A bounded past window ``[lo, hi]`` keeps ring buffers of the child's values and uses
+online van Herk/Gil-Werman: blocks of the window length ``w = hi - lo + 1``; a running prefix
+aggregate (restarted at block starts and at each entry's own step 0), and the block's suffix
+aggregates computed once when the block completes (one vectorised ``accumulate`` every ``w``
+steps of a column). A window ``[max(n-hi, start), n-lo]`` then spans at most two blocks and is
+``op(suffix[max(n-hi, start)], prefix[n-lo])``. Unbounded past windows are running min/max of the
+value delayed by ``lo``. ``since`` is rewritten exactly (see :mod:`asap_dsl.stl.offline`)::
 
     φ S[a,b] ψ  =  H[0,a-1] φ  and  O[a,a]( O[0,b-a] ψ  and  φ S ψ )
 
@@ -47,152 +72,290 @@ from . import ir
 
 __all__ = ["Monitor", "PrefixMonitor", "monitor_for"]
 
+_INF = np.inf
+
 
 # --------------------------------------------------------------------------------------------
-# The shared clock: a global step counter g and each entry's own start step.
+# The clock: per-column step counters and starts; a scalar counter while they are all equal.
 # --------------------------------------------------------------------------------------------
 
 
 class _Clock:
-    def __init__(self, batch: int):
-        self.batch = batch
-        self.g = -1  # global index of the newest update
-        self.start = np.zeros(batch, dtype=np.int64)  # global step of each entry's t = 0
-        self.t = np.full(batch, -1, dtype=np.int64)
-        self.rows = np.arange(batch)
+    def __init__(self, batch: int, lanes: int):
+        self.B, self.L = batch, lanes
+        self.N = N = batch * lanes
+        self.cols = np.arange(N)
+        self.n = np.full(N, -1, dtype=np.int64)  # counter of each column's newest value (general path)
+        self.start = np.zeros(N, dtype=np.int64)  # counter value of each column's t = 0
+        self.t = np.full(N, -1, dtype=np.int64)  # per-column t of the newest value
+        self.aligned = True  # all counters equal to g (then self.n is not maintained)
+        self.g = -1
+        self.smax = 0  # max(start) while aligned: min t = g - smax
+        self.tmin = -1
+        self.mask = None  # [N] bool during a masked general-path update
+        self.n_new = self.n
+        self.states = None
+        self._t_keep = self.t
+
+    def tile(self, mask_b: np.ndarray) -> np.ndarray:
+        return mask_b if self.L == 1 else np.tile(mask_b, self.L)
+
+    def reset(self, mask_n) -> None:
+        if mask_n is None:
+            m = self.g if self.aligned else int(self.n.max())
+            self.g, self.aligned, self.smax = m, True, m + 1
+            self.start.fill(m + 1)
+            self.t.fill(-1)
+            return
+        if self.aligned:
+            self.start[mask_n] = self.g + 1
+            self.smax = self.g + 1
+        else:
+            self.start[mask_n] = self.n[mask_n] + 1
+        self.t[mask_n] = -1
+
+    def fast_tick(self, states) -> None:
+        self.states = states
+        self.g = g = self.g + 1
+        np.subtract(g, self.start, out=self.t)
+        self.tmin = g - self.smax
+
+    def slow_begin(self, states, mask_n) -> None:
+        if self.aligned:
+            self.n.fill(self.g)
+            self.aligned = False
+        if mask_n is not None:
+            fresh = mask_n & (self.t == -1)
+            if fresh.any():  # a fresh trace can take any counter: join the newest ones
+                m = int(self.n.max())
+                self.n[fresh] = m - 1
+                self.start[fresh] = m
+        self.states, self.mask = states, mask_n
+        self.n_new = self.n + 1
+        self._t_keep = self.t
+        self.t = self.n_new - self.start
+        self.tmin = int(self.t.min())
+
+    def slow_end(self) -> None:
+        mask, t_new = self.mask, self.t
+        self.t = self._t_keep
+        if mask is None:
+            self.n[:] = self.n_new
+            self.t[:] = t_new
+        else:
+            np.copyto(self.n, self.n_new, where=mask)
+            np.copyto(self.t, t_new, where=mask)
+        self.mask = None
+        n = self.n
+        if (n == n[0]).all():
+            self.aligned, self.g, self.smax = True, int(n[0]), int(self.start.max())
+
+
+def _commit(state: np.ndarray, new: np.ndarray, mask) -> None:
+    if mask is None:
+        state[...] = new
+    else:
+        np.copyto(state, new, where=mask)
 
 
 # --------------------------------------------------------------------------------------------
-# Online operators. Each computes its value at the newest step from its children's values.
+# Online operators. Each writes its value at the newest step into ``self.out`` ([N] float64).
+# ``fast(ck)`` runs on an aligned clock without a mask, ``slow(ck)`` anywhere.
 # --------------------------------------------------------------------------------------------
 
 
 class _Op:
-    kids: tuple = ()
+    stateless = True
+
+    def __init__(self, ck: _Clock):
+        self.out = np.empty(ck.N)
+
+    def slow(self, ck):
+        self.fast(ck)
 
 
 class _AtomOp(_Op):
-    def __init__(self, atom: ir.Atom, boolean: bool, batch: int):
-        self.atom, self.boolean, self.batch = atom, boolean, batch
-        self.fn = atom.satisfied if boolean else atom.robustness
-        self.dtype = np.bool_ if boolean else np.float64
+    def __init__(self, atom: ir.Atom, ck: _Clock):
+        super().__init__(ck)
+        self.atom = atom
+        self.rob, self.rob_fn = self.out[: ck.B], atom.robustness
+        self.sat = self.out[ck.B:] if ck.L == 2 else None
+        self.sat_fn = atom.satisfied
 
-    def step(self, clock, states, vals):
-        v = np.asarray(self.fn(states))
-        if v.shape != (self.batch,):
-            try:
-                v = np.broadcast_to(v, (self.batch,))
-            except ValueError:
-                raise ValueError(
-                    f"atom {self.atom.text!r} returned shape {v.shape}; expected ({self.batch},)"
-                ) from None
-        return v.astype(self.dtype, copy=False)
+    def _put(self, dst, v):
+        try:
+            np.copyto(dst, v, casting="unsafe")
+        except ValueError:
+            raise ValueError(
+                f"atom {self.atom.text!r} returned shape {np.shape(v)}; expected ({dst.shape[0]},)"
+            ) from None
+
+    def fast(self, ck):
+        s = ck.states
+        self._put(self.rob, self.rob_fn(s))
+        if self.sat is not None:
+            b = np.asarray(self.sat_fn(s))
+            self._put(self.sat, np.where(b, 1.0, -1.0) if b.ndim else (1.0 if b else -1.0))
 
 
 class _ConstOp(_Op):
-    def __init__(self, value, dtype, batch):
-        self.v = np.full(batch, value, dtype=dtype)
+    def __init__(self, value: float, ck):
+        super().__init__(ck)
+        self.out.fill(value)
 
-    def step(self, clock, states, vals):
-        return self.v
+    def fast(self, ck):
+        pass
 
 
-class _FuncOp(_Op):
-    def __init__(self, fn, kids):
-        self.fn, self.kids = fn, kids
+class _NotOp(_Op):
+    def __init__(self, a, ck):
+        super().__init__(ck)
+        self.a = a.out
 
-    def step(self, clock, states, vals):
-        return self.fn(*(vals[k] for k in self.kids))
+    def fast(self, ck):
+        np.negative(self.a, out=self.out)
+
+
+class _BinOp(_Op):
+    def __init__(self, fn, a, b, ck):
+        super().__init__(ck)
+        self.fn, self.a, self.b = fn, a.out, b.out
+
+    def fast(self, ck):
+        self.fn(self.a, self.b, out=self.out)
+
+
+class _ImpliesOp(_BinOp):
+    def fast(self, ck):
+        out = self.out
+        np.negative(self.a, out=out)
+        np.maximum(out, self.b, out=out)
 
 
 class _PastUnbounded(_Op):
     """op over the child's values at steps [0, t - lo] of each entry (running min/max)."""
 
-    def __init__(self, kid, lo, op, ident, dtype, batch):
-        self.kids, self.lo, self.op, self.ident = (kid,), lo, op, ident
-        self.acc = np.full(batch, ident, dtype=dtype)
-        self.empty = np.full(batch, ident, dtype=dtype)
-        self.ring = np.empty((lo + 1, batch), dtype=dtype) if lo else None
+    stateless = False
 
-    def step(self, clock, states, vals):
-        x = vals[self.kids[0]]
-        g, lo = clock.g, self.lo
+    def __init__(self, kid, lo, op, ident, ck):
+        super().__init__(ck)
+        self.x, self.lo, self.op, self.ident = kid.out, lo, op, ident
+        self.out.fill(ident)  # the running aggregate itself (ident where t < lo)
+        self.ring = np.full((lo + 1, ck.N), ident) if lo else None
+
+    def fast(self, ck):
+        x, lo, acc = self.x, self.lo, self.out
         if lo:
+            g = ck.g
             self.ring[g % (lo + 1)] = x
-            if g < lo:
-                return self.empty
             x = self.ring[(g - lo) % (lo + 1)]
-        d = g - lo
-        first = clock.start == d
-        acc = self.op(self.acc, x)
-        if first.any():
-            acc = np.where(first, x, acc)
-        self.acc = acc
-        valid = clock.start <= d
-        return acc if valid.all() else np.where(valid, acc, self.ident)
+        self.op(acc, x, out=acc)
+        if ck.tmin <= lo:
+            t = ck.t
+            np.copyto(acc, x, where=t == lo)
+            if ck.tmin < lo:
+                acc[t < lo] = self.ident
+
+    def slow(self, ck):
+        x, lo, t = self.x, self.lo, ck.t
+        if lo:
+            n = ck.n_new
+            self.ring[n % (lo + 1), ck.cols] = x
+            x = self.ring[(n - lo) % (lo + 1), ck.cols]
+        new = np.where(t == lo, x, self.op(self.out, x))
+        new[t < lo] = self.ident
+        _commit(self.out, new, ck.mask)
 
 
 class _PastBounded(_Op):
     """op over the child's values at steps [t - hi, t - lo] of each entry (online van Herk)."""
 
-    def __init__(self, kid, lo, hi, op, ident, dtype, batch):
-        self.kids, self.lo, self.hi, self.op, self.ident = (kid,), lo, hi, op, ident
+    def __init__(self, kid, lo, hi, op, ident, ck):
+        super().__init__(ck)
+        self.x, self.lo, self.hi, self.op, self.ident = kid.out, lo, hi, op, ident
         self.w = w = hi - lo + 1
         self.C = C = w * (-(-(hi + 1) // w))  # ring capacity: >= hi + 1 and a multiple of w
-        self.xb = np.empty((w, batch), dtype=dtype)  # the current block's raw values
-        self.pre = np.empty((C, batch), dtype=dtype)  # prefix aggregates (restarted at step 0)
-        self.suf = np.empty((C, batch), dtype=dtype)  # suffix aggregates of completed blocks
-        self.empty = np.full(batch, ident, dtype=dtype)
+        N = ck.N
+        self.xb = np.full((w, N), ident)  # the current block's raw values
+        self.pre = np.full((C, N), ident)  # prefix aggregates (restarted at block starts and step 0)
+        self.suf = np.full((C, N), ident)  # suffix aggregates of completed blocks
+        self.arw = np.arange(w)[:, None]
 
-    def step(self, clock, states, vals):
-        x = vals[self.kids[0]]
-        g, w, C, op = clock.g, self.w, self.C, self.op
+    def fast(self, ck):
+        x, g, w, C, op, out = self.x, ck.g, self.w, self.C, self.op, self.out
         r = g % w
         self.xb[r] = x
+        p = self.pre[g % C]
         if r == 0:
-            pre = x
+            p[...] = x
         else:
-            pre = op(self.pre[(g - 1) % C], x)
-            restart = clock.start == g
-            if restart.any():
-                pre = np.where(restart, x, pre)
-        self.pre[g % C] = pre
+            op(self.pre[(g - 1) % C], x, out=p)
+            if ck.tmin == 0:
+                np.copyto(p, x, where=ck.t == 0)
         if r == w - 1:  # block complete: its suffix aggregates, once per w steps
             base = (g - w + 1) % C
-            self.suf[base : base + w] = op.accumulate(self.xb[::-1], axis=0)[::-1]
+            self.suf[base: base + w] = op.accumulate(self.xb[::-1], axis=0)[::-1]
         end = g - self.lo
-        if end < 0:
-            return self.empty
-        start = np.maximum(clock.start, g - self.hi)
-        pre_end = self.pre[end % C]
-        if w == 1:
-            res = pre_end
-        else:
-            split = (start // w) != (end // w)
-            if split.any():
-                res = np.where(split, op(self.suf[start % C, clock.rows], pre_end), pre_end)
+        pe = self.pre[end % C]
+        if ck.tmin >= self.hi:  # steady state: every window is [g - hi, g - lo]
+            s = g - self.hi
+            if s // w != end // w:
+                op(self.suf[s % C], pe, out=out)
             else:
-                res = pre_end
-        valid = start <= end
-        return res if valid.all() else np.where(valid, res, self.ident)
+                out[...] = pe
+            return
+        s = np.maximum(ck.start, g - self.hi)
+        split = (s // w) != (end // w)
+        if split.any():
+            np.copyto(out, np.where(split, op(self.suf[s % C, ck.cols], pe), pe))
+        else:
+            out[...] = pe
+        if ck.tmin < self.lo:
+            out[ck.t < self.lo] = self.ident
+
+    def slow(self, ck):
+        x, n, t, cols, w, C, op = self.x, ck.n_new, ck.t, ck.cols, self.w, self.C, self.op
+        r = n % w
+        self.xb[r, cols] = x
+        pre = op(self.pre[(n - 1) % C, cols], x)
+        np.copyto(pre, x, where=(r == 0) | (t == 0))
+        self.pre[n % C, cols] = pre
+        done = np.flatnonzero(r == w - 1)
+        if done.size:  # blocks completing in these columns: their suffix aggregates
+            suf = op.accumulate(self.xb[::-1, done], axis=0)[::-1]
+            base = (n[done] - (w - 1)) % C
+            self.suf[base[None, :] + self.arw, done[None, :]] = suf
+        end = n - self.lo
+        s = np.maximum(ck.start, n - self.hi)
+        res = self.pre[end % C, cols]
+        split = (s // w) != (end // w)
+        if split.any():
+            res = np.where(split, op(self.suf[s % C, cols], res), res)
+        res[t < self.lo] = self.ident
+        self.out[...] = res
 
 
 class _SinceUnbounded(_Op):
-    """Strict unbounded since: S(t) = join(ψ(t), meet(φ(t), S(t-1))), S(-1) = bottom."""
+    """Strict unbounded since: S(t) = max(ψ(t), min(φ(t), S(t-1))), S(-1) = bottom."""
 
-    def __init__(self, left, right, bottom, dtype, batch):
-        self.kids = (left, right)
-        self.bottom = bottom
-        self.S = np.full(batch, bottom, dtype=dtype)
+    stateless = False
 
-    def step(self, clock, states, vals):
-        phi, psi = vals[self.kids[0]], vals[self.kids[1]]
-        S = np.maximum(psi, np.minimum(phi, self.S))
-        first = clock.t == 0
-        if first.any():
-            S = np.where(first, psi, S)
-        self.S = S
-        return S
+    def __init__(self, left, right, ck):
+        super().__init__(ck)
+        self.phi, self.psi = left.out, right.out
+        self.out.fill(-_INF)  # S itself
+
+    def fast(self, ck):
+        S, psi = self.out, self.psi
+        np.minimum(self.phi, S, out=S)
+        np.maximum(psi, S, out=S)
+        if ck.tmin == 0:
+            np.copyto(S, psi, where=ck.t == 0)
+
+    def slow(self, ck):
+        S = np.maximum(self.psi, np.minimum(self.phi, self.out))
+        np.copyto(S, self.psi, where=ck.t == 0)
+        _commit(self.out, S, ck.mask)
 
 
 def _future_name(node) -> Optional[str]:
@@ -207,62 +370,58 @@ def _future_name(node) -> Optional[str]:
 
 
 class _Graph:
-    """A compiled, topologically ordered list of online operators for several causal roots."""
+    """A compiled, topologically ordered list of online operators for several causal roots,
+    over the ``L * B`` columns of ``ck`` (both lanes in one pass)."""
 
-    def __init__(self, roots, boolean: bool, batch: int):
-        self.boolean, self.batch = boolean, batch
-        self.dtype = np.bool_ if boolean else np.float64
-        self.bottom, self.top = (False, True) if boolean else (-np.inf, np.inf)
+    def __init__(self, roots, ck: _Clock):
+        self.ck = ck
         self.ops: list[_Op] = []
-        self.memo: dict[int, tuple[object, int]] = {}
+        self.memo: dict[int, tuple[object, _Op]] = {}
         self.keep: list = []  # rewritten nodes kept alive (ids stay unique)
         self.outputs = [self._compile(r) for r in roots]
+        work = [op for op in self.ops if not isinstance(op, _ConstOp)]
+        self.fast = [op.fast for op in work]
+        self.slow = [op.slow for op in work]
 
-    def _add(self, op) -> int:
+    def _add(self, op) -> _Op:
         self.ops.append(op)
-        return len(self.ops) - 1
+        return op
 
-    def _compile(self, node) -> int:
+    def _compile(self, node) -> _Op:
         hit = self.memo.get(id(node))
         if hit is not None:
             return hit[1]
-        idx = self._compile_node(node)
-        self.memo[id(node)] = (node, idx)
-        return idx
+        op = self._compile_node(node)
+        self.memo[id(node)] = (node, op)
+        return op
 
-    def _compile_node(self, node) -> int:
-        B, dt, boolean = self.batch, self.dtype, self.boolean
+    def _compile_node(self, node) -> _Op:
+        ck = self.ck
         if isinstance(node, ir.Atom):
-            return self._add(_AtomOp(node, boolean, B))
+            return self._add(_AtomOp(node, ck))
         if isinstance(node, ir.Const):
-            return self._add(_ConstOp(self.top if node.value else self.bottom, dt, B))
-        neg = np.logical_not if boolean else np.negative
+            return self._add(_ConstOp(_INF if node.value else -_INF, ck))
         if isinstance(node, ir.Not):
-            return self._add(_FuncOp(neg, (self._compile(node.arg),)))
+            return self._add(_NotOp(self._compile(node.arg), ck))
         if isinstance(node, (ir.And, ir.Or, ir.Implies)):
-            kids = (self._compile(node.left), self._compile(node.right))
-            if isinstance(node, ir.And):
-                fn = np.minimum
-            elif isinstance(node, ir.Or):
-                fn = np.maximum
-            else:
-                fn = lambda a, b: np.maximum(neg(a), b)  # noqa: E731
-            return self._add(_FuncOp(fn, kids))
+            a, b = self._compile(node.left), self._compile(node.right)
+            if isinstance(node, ir.Implies):
+                return self._add(_ImpliesOp(None, a, b, ck))
+            return self._add(_BinOp(np.minimum if isinstance(node, ir.And) else np.maximum, a, b, ck))
         if isinstance(node, (ir.Historically, ir.Once)):
             kid = self._compile(node.arg)
             if isinstance(node, ir.Historically):
-                op, ident = np.minimum, self.top
+                op, ident = np.minimum, _INF
             else:
-                op, ident = np.maximum, self.bottom
+                op, ident = np.maximum, -_INF
             lo, hi = node.interval.lo, node.interval.hi
             if hi is None:
-                return self._add(_PastUnbounded(kid, lo, op, ident, dt, B))
-            return self._add(_PastBounded(kid, lo, hi, op, ident, dt, B))
+                return self._add(_PastUnbounded(kid, lo, op, ident, ck))
+            return self._add(_PastBounded(kid, lo, hi, op, ident, ck))
         if isinstance(node, ir.Since):
             lo, hi = node.interval.lo, node.interval.hi
             if lo == 0 and hi is None:
-                kids = (self._compile(node.left), self._compile(node.right))
-                return self._add(_SinceUnbounded(*kids, self.bottom, dt, B))
+                return self._add(_SinceUnbounded(self._compile(node.left), self._compile(node.right), ck))
             core = ir.Since(ir.Interval(0, None), node.left, node.right)
             if hi is not None:
                 core = ir.And(ir.Once(ir.Interval(0, hi - lo), node.right), core)
@@ -280,12 +439,6 @@ class _Graph:
             )
         raise TypeError(f"not a formula node: {node!r}")
 
-    def step(self, clock, states) -> list:
-        vals = [None] * len(self.ops)
-        for i, op in enumerate(self.ops):
-            vals[i] = op.step(clock, states, vals)
-        return [vals[i] for i in self.outputs]
-
 
 # --------------------------------------------------------------------------------------------
 # Public monitors
@@ -299,14 +452,14 @@ class _Base:
         self.batch = int(batch)
         self.n_state = n_state
         self._track_sat = bool(satisfaction)
-        self._clock = _Clock(self.batch)
+        self._clock = _Clock(self.batch, 2 if self._track_sat else 1)
         self._rob = np.full(self.batch, np.nan)
         self._sat = np.zeros(self.batch, dtype=bool)
 
     @property
     def t(self) -> np.ndarray:
         """Per-entry step index of the newest state (-1 before an entry's first update)."""
-        return self._clock.t.copy()
+        return self._clock.t[: self.batch].copy()
 
     @property
     def robustness(self) -> np.ndarray:
@@ -320,25 +473,27 @@ class _Base:
             raise ValueError("this monitor was built with satisfaction=False")
         return self._sat
 
-    def reset(self, mask=None) -> None:
-        """Start new traces: all entries, or those where ``mask`` (bool ``[B]``) is True."""
-        c = self._clock
+    def _check_mask(self, mask, what: str):
         if mask is None:
-            c.start[:] = c.g + 1
-            c.t[:] = -1
-            return
+            return None
         m = np.asarray(mask)
         if m.shape != (self.batch,) or m.dtype != np.bool_:
-            raise ValueError(f"reset mask must be a bool array of shape ({self.batch},); got {m.dtype} {m.shape}")
-        c.start[m] = c.g + 1
-        c.t[m] = -1
+            raise ValueError(f"{what} mask must be a bool array of shape ({self.batch},); got {m.dtype} {m.shape}")
+        return m
 
-    def _check_states(self, states) -> np.ndarray:
+    def reset(self, mask=None) -> None:
+        """Start new traces: all entries, or those where ``mask`` (bool ``[B]``) is True."""
+        m = self._check_mask(mask, "reset")
+        self._clock.reset(None if m is None else self._clock.tile(m))
+
+    def _check_states(self, states, mask=None) -> np.ndarray:
         s = np.asarray(states, dtype=np.float64)
         if s.ndim != 2 or s.shape[0] != self.batch:
             raise ValueError(f"states must have shape [{self.batch}, n_state]; got {s.shape}")
         if self.n_state is not None and s.shape[1] != self.n_state:
             raise ValueError(f"states have {s.shape[1]} state component(s); expected {self.n_state}")
+        if mask is not None:  # rows of entries that do not advance are ignored
+            s = np.where(mask[:, None], s, 0.0)
         if not np.isfinite(s).all():
             b, i = (int(v) for v in np.argwhere(~np.isfinite(s))[0])
             raise ValueError(
@@ -346,11 +501,32 @@ class _Base:
             )
         return s
 
-    def _tick(self) -> _Clock:
-        c = self._clock
-        c.g += 1
-        np.subtract(c.g, c.start, out=c.t)
-        return c
+    def _step(self, states, mask):
+        """Validate, advance the clock and run ``self._run(fast)``; returns the [N] result."""
+        m = self._check_mask(mask, "update")
+        if m is not None and m.all():
+            m = None
+        s = self._check_states(states, m)
+        ck = self._clock
+        if m is None and ck.aligned:
+            ck.fast_tick(s)
+            res = self._run(ck, True)
+        else:
+            if m is not None and not m.any():
+                return None, m
+            ck.slow_begin(s, None if m is None else ck.tile(m))
+            res = self._run(ck, False)
+            ck.slow_end()
+        B = self.batch
+        if m is None:
+            self._rob = res[:B].copy()
+            if self._track_sat:
+                self._sat = res[B:] > 0.0
+        else:
+            self._rob = np.where(m, res[:B], self._rob)
+            if self._track_sat:
+                self._sat = np.where(m, res[B:] > 0.0, self._sat)
+        return res, m
 
 
 class Monitor(_Base):
@@ -367,18 +543,18 @@ class Monitor(_Base):
                 f"operators, or offline.robustness"
             )
         self.node = node
-        self._g_rob = _Graph([node], False, self.batch)
-        self._g_sat = _Graph([node], True, self.batch) if self._track_sat else None
+        self._graph = _Graph([node], self._clock)
+        self._out = self._graph.outputs[0].out
 
-    def update(self, states) -> np.ndarray:
-        """Append ``states [B, n]`` to every trace; return ρ at the newest step, float64 ``[B]``."""
-        s = self._check_states(states)
-        c = self._tick()
-        (r,) = self._g_rob.step(c, s)
-        self._rob = np.array(r, dtype=np.float64)
-        if self._g_sat is not None:
-            (b,) = self._g_sat.step(c, s)
-            self._sat = np.array(b, dtype=bool)
+    def _run(self, ck, fast):
+        for f in (self._graph.fast if fast else self._graph.slow):
+            f(ck)
+        return self._out
+
+    def update(self, states, mask=None) -> np.ndarray:
+        """Append ``states [B, n]`` to every trace (or to the entries where the bool ``[B]`` ``mask``
+        is True; the others keep their values); return ρ at each newest step, float64 ``[B]``."""
+        self._step(states, mask)
         return self._rob
 
 
@@ -421,44 +597,42 @@ def _prefix_plan(node, leaves: list):
 
 
 class _PrefixLeaf:
-    """Value at time 0 of one top-level leaf over the prefix, in O(1) per step."""
+    """Value at time 0 of one top-level leaf over the prefix, in O(1) per step, both lanes."""
 
-    def __init__(self, kind, node, graph_idx, lat_bottom, lat_top, dtype, batch):
+    def __init__(self, kind, node, kids, ck):
         self.kind = kind
-        self.idx = graph_idx  # indices into the causal graph's outputs
-        self.bottom, self.top = lat_bottom, lat_top
+        self.kids = [k.out for k in kids]  # the causal graph's outputs this leaf reads
         if kind in ("eventually", "until"):
-            init = lat_bottom
+            init = -_INF
         elif kind == "always":
-            init = lat_top
+            init = _INF
         else:
-            init = lat_bottom  # causal: overwritten at t = 0
-        self.acc = np.full(batch, init, dtype=dtype)
+            init = -_INF  # causal: overwritten at t = 0
         self.init = init
-        self.hmin = np.full(batch, lat_top, dtype=dtype)  # until: min of φ over [0, t)
+        self.acc = np.full(ck.N, init)
+        self.hmin = np.full(ck.N, _INF)  # until: min of φ over [0, t)
         if kind != "causal":
             self.lo, self.hi = node.interval.lo, node.interval.hi
 
-    def step(self, t, outs):
-        kind = self.kind
+    def step(self, ck):
+        kind, t, mask = self.kind, ck.t, ck.mask
         first = t == 0
         if kind == "causal":
-            v = outs[self.idx[0]]
-            self.acc = np.where(first, v, self.acc)
+            _commit(self.acc, np.where(first, self.kids[0], self.acc), mask)
             return self.acc
         acc = np.where(first, self.init, self.acc)
         inwin = t >= self.lo
         if self.hi is not None:
             inwin &= t <= self.hi
         if kind == "until":
-            phi, psi = outs[self.idx[0]], outs[self.idx[1]]
-            hmin = np.where(first, self.top, self.hmin)
+            phi, psi = self.kids
+            hmin = np.where(first, _INF, self.hmin)
             cand = np.maximum(acc, np.minimum(psi, hmin))
-            self.hmin = np.minimum(hmin, phi)
+            _commit(self.hmin, np.minimum(hmin, phi), mask)
         else:
-            v = outs[self.idx[0]]
+            v = self.kids[0]
             cand = np.maximum(acc, v) if kind == "eventually" else np.minimum(acc, v)
-        self.acc = np.where(inwin, cand, acc)
+        _commit(self.acc, np.where(inwin, cand, acc), mask)
         return self.acc
 
 
@@ -481,40 +655,34 @@ class PrefixMonitor(_Base):
                 parts = (leaf.arg,)
             idx.append(tuple(range(len(roots), len(roots) + len(parts))))
             roots.extend(parts)
-        self._lanes = []
-        for boolean in ((False, True) if self._track_sat else (False,)):
-            graph = _Graph(roots, boolean, self.batch)
-            lv = [_PrefixLeaf(kind, leaf, ix, graph.bottom, graph.top, graph.dtype, self.batch)
-                  for (kind, leaf), ix in zip(leaves, idx)]
-            self._lanes.append((graph, lv, boolean))
+        self._graph = _Graph(roots, self._clock)
+        outs = self._graph.outputs
+        self._leaves = [_PrefixLeaf(kind, leaf, [outs[i] for i in ix], self._clock)
+                        for (kind, leaf), ix in zip(leaves, idx)]
 
-    def _combine(self, plan, vals, boolean):
+    def _combine(self, plan, vals):
         kind = plan[0]
         if kind == "leaf":
             return vals[plan[1]]
-        neg = np.logical_not if boolean else np.negative
         if kind == "not":
-            return neg(self._combine(plan[1], vals, boolean))
-        a = self._combine(plan[1], vals, boolean)
-        b = self._combine(plan[2], vals, boolean)
+            return np.negative(self._combine(plan[1], vals))
+        a = self._combine(plan[1], vals)
+        b = self._combine(plan[2], vals)
         if kind == "and":
             return np.minimum(a, b)
         if kind == "or":
             return np.maximum(a, b)
-        return np.maximum(neg(a), b)
+        return np.maximum(np.negative(a), b)
 
-    def update(self, states) -> np.ndarray:
-        """Append ``states [B, n]``; return ρ at time 0 of each prefix s_0..s_t, float64 ``[B]``."""
-        s = self._check_states(states)
-        c = self._tick()
-        for graph, leaves, boolean in self._lanes:
-            outs = graph.step(c, s)
-            vals = [leaf.step(c.t, outs) for leaf in leaves]
-            res = self._combine(self._plan, vals, boolean)
-            if boolean:
-                self._sat = np.array(res, dtype=bool)
-            else:
-                self._rob = np.array(res, dtype=np.float64)
+    def _run(self, ck, fast):
+        for f in (self._graph.fast if fast else self._graph.slow):
+            f(ck)
+        return self._combine(self._plan, [leaf.step(ck) for leaf in self._leaves])
+
+    def update(self, states, mask=None) -> np.ndarray:
+        """Append ``states [B, n]`` (to the masked entries only, with a bool ``[B]`` ``mask``);
+        return ρ at time 0 of each prefix s_0..s_t, float64 ``[B]``."""
+        self._step(states, mask)
         return self._rob
 
 
