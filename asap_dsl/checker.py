@@ -35,6 +35,7 @@ TRAIN_SETTINGS = {
 }
 OBSERVE_ITEMS = ("state", "time")
 TASK_CLAUSES = ("asap", "avoid", "deadline", "tolerances", "episode", "reward", "r_sat", "observe", "train")
+_MAX_STEPS = 1e9  # a time of more steps than this is a typo, not an episode
 _FUTURE_TO_PAST = {"always": "historically", "eventually": "once", "until": "since"}
 
 # Kinds of names.
@@ -191,12 +192,18 @@ class Checker:
                 self.d.add("E106", f"{what} {_fmt(d.value)} is not a whole number of steps", d.span,
                            hint="give a whole number of steps, or seconds with a unit such as 1.5s")
                 raise _Unresolved
+            if d.value > _MAX_STEPS:
+                self.d.add("E117", f"{what} {_fmt(d.value)} is more than {_MAX_STEPS:.0e} steps", d.span)
+                raise _Unresolved
             return int(d.value)
         seconds = d.value / 1000.0 if d.unit == "ms" else d.value
         if self.dt is None:
             self.d.add("E114", f"{what} is given in seconds, but the system has no valid dt to convert it", d.span)
             raise _Unresolved
         n = seconds / self.dt
+        if not math.isfinite(n) or n > _MAX_STEPS:
+            self.d.add("E117", f"{what} {_fmt(d.value)}{d.unit} is more than {_MAX_STEPS:.0e} steps of dt = {_fmt(self.dt)}", d.span)
+            raise _Unresolved
         if abs(n - round(n)) > 1e-9 * max(1.0, abs(n)):
             self.d.add("E106", f"{what} {_fmt(d.value)}{d.unit} is {n:.6g} steps of dt = {_fmt(self.dt)}, not a whole number",
                        d.span, hint=f"use a multiple of {_fmt(self.dt)}s")

@@ -211,8 +211,10 @@ def interval_range(expr: ast.Expr, symbols: Symbols, state_box: Sequence[tuple[f
 def evaluate_constant(expr: ast.Expr, consts: Mapping[str, float]) -> float:
     """Fold a constant expression (no states, actions or lets) to a float."""
     fn = compile_function([expr], Symbols(consts, {}, {}, {}), _MATH)
-    with np.errstate(all="ignore"):
+    try:
         return float(fn((), ())[0])
+    except (ZeroDivisionError, OverflowError):  # 1/0, 10^400: not a real number; the checker says so
+        return math.nan
 
 
 def _safe_math(f):

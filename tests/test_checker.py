@@ -213,3 +213,20 @@ def test_distance_reward_needs_a_region_in_asap():
         asap_dsl.loads(base + "task t { asap x > 0.5  deadline 3  reward distance }")
     (d,) = [d for d in info.value.diagnostics if d.code == "E117"]
     assert "names no region" in d.message and d.line == 3
+
+
+@pytest.mark.parametrize(
+    "text, code",
+    [
+        ("system A { const a = 1/0  state x in [0, 1]  dt = 0.1  map { x = x } }", "E117"),
+        ("system A { state x in [0, 1]  dt = 0.1/0  map { x = x } }", "E117"),
+        ("system A { state x in [0, 1]  dt = 10^400  map { x = x } }", "E117"),
+        ("system A { state x in [0, 1]  dt = 1e-320  map { x = x } }\ntask t { asap x < 1  deadline 3s }", "E117"),
+        ("system A { state x in [0, 1]  dt = 0.1  map { x = x } }\ntask t { asap x < 1  deadline 1e30 }", "E117"),
+    ],
+)
+def test_degenerate_numbers_are_diagnostics_not_crashes(text, code):
+    """Found by the fuzz: division by zero while folding constants, and times of 1e300 steps."""
+    with pytest.raises(asap_dsl.SpecError) as info:
+        asap_dsl.loads(text)
+    assert code in [d.code for d in info.value.diagnostics]
