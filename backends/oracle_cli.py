@@ -69,12 +69,16 @@ def render_text(report, out: TextIO) -> None:
               f" (infeasible {c['infeasible']}, solver failed {c['solver_failed']}, nan {c['nan']})\n")
     out.write(f"  solver failures: {c['solver_failures']} solves on {c['states_with_solver_failures']} states; "
               f"unverified by replay: {c['unverified']}\n")
+    t = d.get("tightened")
+    if t and t["from"]:
+        out.write(f"  tightened with the solutions of {', '.join(t['from'])} (replayed under this task): "
+                  f"{t['improved_states']} states improved\n")
 
 
 def oracle_command(args: argparse.Namespace, out: Optional[TextIO] = None, err: Optional[TextIO] = None) -> int:
     """Run the oracle; exit 0 on success, 1 on a spec error or an unsupported system/task."""
     import asap_dsl
-    from asap_dsl.backends.oracle import OracleUnsupported, run
+    from asap_dsl.backends.oracle import OracleUnsupported, run, tighten
 
     out = out or sys.stdout
     err = err or sys.stderr
@@ -101,8 +105,11 @@ def oracle_command(args: argparse.Namespace, out: Optional[TextIO] = None, err: 
             err.write(f"error: {args.file}: task {t}: {e}\n")
             return 1
         reports.append(rep)
-        if args.format == "text":
-            if len(reports) > 1:
+    if len(reports) > 1:  # tasks sharing `asap`: make their local minima consistent (replay-verified)
+        tighten(prog, reports)
+    if args.format == "text":
+        for i, rep in enumerate(reports):
+            if i:
                 out.write("\n")
             render_text(rep, out)
     if args.format == "json":

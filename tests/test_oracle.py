@@ -232,3 +232,110 @@ def test_wilson_interval():
     lo, hi = O.wilson_interval(53, 100)
     assert lo == pytest.approx(0.4329, abs=1e-4) and hi == pytest.approx(0.6249, abs=1e-4)
     assert O.wilson_interval(0, 10)[0] == 0.0 and O.wilson_interval(10, 10)[1] == 1.0
+
+
+# A double well in a `let` coordinate: from x0 = 1 (the shallow well, z = 0.3) the goal z <= -0.2
+# lies in the other well (x near -1), one step away with |u| <= 3. IPOPT started from x0 held
+# (the default guess) stays in the shallow well at every horizon; a bang-bang rollout finds it.
+WELLS = """
+system Wells {
+  state x in [-10, 10] init [0.5, 1.5]
+  action u in [-3, 3]
+  let z = (x^2 - 1)^2 + 0.3 * x
+  dt = 1
+  map {
+    x = x + u
+  }
+}
+region goal = box(z in [-10, -0.2])
+task reach { asap in goal  deadline 4 }
+"""
+
+# x+ = x + u + 0.1 u^3 with |u| <= 1 moves at most 1.1 per step and axis, and is not linear: the
+# N-search starts at the interval bound, which is exact here (a distance of 9.5 needs 9 steps).
+CUBIC = """
+system Cubic {
+  state x in [-10, 10] init [-5, -5]
+  state y in [-10, 10] init [0, 0]
+  action ux in [-1, 1]
+  action uy in [-1, 1]
+  dt = 1
+  map {
+    x = x + ux + 0.1 * ux^3
+    y = y + uy + 0.1 * uy^3
+  }
+}
+region goal = ball([5, 0], 0.5)
+task reach { asap in goal  deadline 30 }
+task near { asap in goal  deadline 8 }
+"""
+
+
+def test_multi_start_finds_what_the_single_start_misses():
+    prog = asap_dsl.loads(WELLS)
+    single = O.Oracle(prog, "reach", restarts=0).solve([1.0])
+    assert (single.steps, single.status, single.restarts) == (None, "infeasible", 0)
+    multi = O.Oracle(prog, "reach", restarts=2)
+    assert multi.label == "local"
+    r = multi.solve([1.0])
+    assert (r.steps, r.status, r.verified) == (1, "solved", True)
+    assert r.restarts >= 1 and r.solves == 1 + r.restarts
+    assert prog.regions["goal"].satisfied(r.trajectory[-1:]).all()
+    again = O.Oracle(prog, "reach", restarts=2).solve([1.0])  # deterministic
+    assert (again.steps, again.solves, again.restarts) == (r.steps, r.solves, r.restarts)
+    np.testing.assert_array_equal(again.actions, r.actions)
+    # linear dynamics do not restart by default (convex, or non-convex only in avoid / the goal)
+    assert O.Oracle(asap_dsl.loads(PLANE), "reach").restarts == 0
+
+
+def test_interval_lower_bound_is_sound_and_tight():
+    prog = asap_dsl.loads(CUBIC)
+    o = O.Oracle(prog, "reach")
+    assert not o.linear and o.label == "local"
+    assert o.lower_bound(np.array([-5.0, 0.0])) == 9
+    r = o.solve([-5.0, 0.0])
+    assert (r.steps, r.lower_bound, r.verified) == (9, 9, True)
+    assert O.Oracle(prog, "reach", interval_bound=False).lower_bound(np.array([-5.0, 0.0])) == 0
+    # unreachable within the deadline: proved by the bound, no NLP solved
+    far = O.Oracle(prog, "near").solve([-5.0, 0.0])
+    assert (far.steps, far.status, far.solves) == (None, "infeasible", 0)
+    # the bicycle: the bound never exceeds the minimum the local search verifies
+    bike = asap_dsl.load(SPECS / "bicycle.asap")
+    ob = O.Oracle(bike, "reach")
+    for x0 in ([-1.5, -1.5, 0.0, 0.0], [0.0, 0.0, 0.3, 1.0], [-1.0, 0.5, 0.2, 1.0]):
+        lb = ob.lower_bound(np.asarray(x0))
+        res = ob.solve(x0)
+        assert res.steps is None or lb <= res.steps
+        assert res.steps is None or res.verified
+
+
+def test_tighten_takes_the_min_and_every_sequence_replays():
+    prog = asap_dsl.loads(PLANE)
+    states = np.array([[-5.0, 0.0], [-4.0, 1.0], [-6.0, -0.5], [3.0, 0.5]])
+    free = O.run(prog, "reach", states=states)
+    avoid = O.run(prog, "reach_avoid", states=states)
+    # a worse local search for `reach`: state 0 "infeasible"; state 1 one step longer than
+    # with the obstacle (zero actions first keep the point where it is: still a valid sequence)
+    r0, r1 = free.results[0], free.results[1]
+    assert avoid.steps[0] > r0.steps  # the disc is in the way of state 0
+    free.results[0] = O.StateResult(0, r0.x0, None, "infeasible", False)
+    k = int(avoid.steps[1]) - r1.steps + 1
+    free.results[1] = O.StateResult(1, r1.x0, r1.steps + k, "solved", True,
+                                    actions=np.vstack([np.zeros((k, 2)), r1.actions]))
+    # a bogus `reach_avoid` answer for state 2 (claims 1 step): must not be adopted
+    ra2, r2 = avoid.results[2], free.results[2]
+    avoid.results[2] = O.StateResult(2, ra2.x0, 1, "solved", True, actions=np.zeros((1, 2)))
+    got = O.tighten(prog, [free, avoid])
+    assert got == {"reach": 2, "reach_avoid": 0}
+    assert free.extra["tightened"] == {"from": ["reach_avoid"], "improved_states": 2}
+    assert free.steps[0] == avoid.steps[0] and free.steps[1] <= avoid.steps[1]
+    assert free.results[2] is r2 and free.results[3].steps == 0 or free.results[3].source is None
+    checker = {"reach": O.Oracle(prog, "reach"), "reach_avoid": O.Oracle(prog, "reach_avoid")}
+    for rep in (free, avoid):
+        for r in rep.results:
+            if r.steps is None or (rep is avoid and r.index == 2):
+                continue
+            tr, ok = checker[rep.task].replay(r.x0, r.actions)
+            assert ok and len(r.actions) == r.steps, (rep.task, r.index)
+            assert r.verified
+    assert free.results[0].source == "reach_avoid" and free.results[2].source is None
