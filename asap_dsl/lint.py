@@ -9,11 +9,11 @@ a subclass of :class:`LintRule` registered in :data:`LINT_RULES`; its ``code`` i
 from __future__ import annotations
 
 import math
-from typing import ClassVar, Iterator, Optional
+from typing import ClassVar, Optional
 
 import numpy as np
 
-from .diagnostics import Collector, Span
+from .diagnostics import Collector
 from .expr import degree
 from .model import ProgramModel, RegionModel, TaskModel
 from .stl import ir
@@ -220,9 +220,4 @@ def lint(prog: ProgramModel, out: Collector, rules: Optional[list[type[LintRule]
         cls().check(prog, out)
 
 
-def rule_codes() -> Iterator[str]:
-    for cls in LINT_RULES:
-        yield cls.code
-
-
-__all__ = ["LintRule", "LINT_RULES", "lint", "regions_overlap", "Span"]
+__all__ = ["LintRule", "LINT_RULES", "lint", "regions_overlap"]

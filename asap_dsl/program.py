@@ -6,7 +6,6 @@ robustness, satisfaction, first-satisfaction step, online monitors) and :class:`
 
 from __future__ import annotations
 
-import math
 import os
 from pathlib import Path
 from typing import Any, Optional, Union
@@ -15,7 +14,7 @@ import numpy as np
 
 from . import checker, lint, parser
 from .diagnostics import Collector, Diagnostic, Span, SpecError, make
-from .model import FormulaModel, ProgramModel, RegionModel, SystemModel, TaskModel, formula_bounds
+from .model import ProgramModel, RegionModel, SystemModel, TaskModel, formula_bounds
 from .stl import ir
 
 
@@ -222,4 +221,4 @@ def load(path: Union[str, os.PathLike]) -> Program:
     return loads(read_source(path), str(path))
 
 
-__all__ = ["Formula", "Task", "Program", "load", "loads", "analyse", "read_source", "math"]
+__all__ = ["Formula", "Task", "Program", "load", "loads", "analyse", "read_source"]

@@ -74,9 +74,7 @@ def test_end_reasons_all_reachable(line):
     assert term and info["end_reason"] == "out_of_bounds"
     # non-finite: y * 1e200^2 overflows to inf after a few steps (y starts non-zero)
     env.reset(seed=7)
-    last = None
     for _ in range(10):
-        prev = c.states.copy()
         obs, r, term, trunc, info = env.step([0.0, 1.0])
         if term or trunc:
             break
@@ -140,6 +138,7 @@ def test_same_seed_same_rollout():
     v1 = asap_dsl.make_vec_env(SPECS / "dc_motor.asap", "reach", num_envs=8, seed=4)
     v2 = asap_dsl.make_vec_env(SPECS / "dc_motor.asap", "reach", num_envs=8, seed=4)
     o1, o2 = v1.reset(), v2.reset()
+    assert np.array_equal(o1, o2)
     for _ in range(40):
         a = np.full((8, 1), 20.0)
         s1, s2 = v1.step(a), v2.step(a)
