@@ -71,6 +71,9 @@ class _Core:
         self.avoid = FormulaTracker(tm.avoid, self.B, self.n, autoreset=autoreset) if tm.avoid is not None else None
         trackers = [self.asap] + ([self.avoid] if self.avoid else []) + self.reward.trackers
         self.trackers = trackers
+        # Stepped after ``done`` is known (which needs ``avoid`` only): with autoreset, these step and
+        # restart in one call each (atoms evaluated once on the reached and the restart states).
+        self._late = [self.asap] + self.reward.trackers
         self.kmin, self.kmax = tm.episode
         self.low, self.high = sysm.state_low, sysm.state_high
         self.observe_time = "time" in tm.observe
@@ -146,9 +149,9 @@ class _Core:
         finite = np.isfinite(new).all(axis=1)
         safe = new if finite.all() else np.where(finite[:, None], new, self.states)
         oob = ((safe < self.low) | (safe > self.high)).any(axis=1)
-        with np.errstate(over="ignore", invalid="ignore"):  # huge finite states: regions may overflow to inf
-            for tr in self.trackers:
-                tr.step(safe)
+        if self.avoid is not None:
+            with np.errstate(over="ignore", invalid="ignore"):  # huge finite states: regions may overflow to inf
+                self.avoid.step(safe)
         end = np.zeros(self.B, dtype=np.int64)
         end[oob] = _OOB
         if self.avoid is not None:
@@ -157,33 +160,42 @@ class _Core:
         failed = end > 0
         truncated = ~failed & (self.t >= self.k)
         end[truncated] = _TIME
-        reward = self.reward.value(safe, self.asap.rob, self.asap.sat, failed)
-        newly = self.asap.sat & ~failed & (self.t_reach < 0)
-        self.t_reach[newly] = self.t[newly]
-        self.states = safe
-        self.end = end
-        obs = self.obs()
         done = end > 0
-        # Info of the finished step (before any autoreset).
-        self.info_rho = self.asap.rob.copy()
-        self.info_sat = self.asap.sat.copy()
-        self.info_t_reach = self.t_reach.copy()
-        self.info_end = end.copy()
-        self.info_t = self.t.copy()
-        final_obs = None
-        if self.autoreset and done.any():
-            final_obs = obs[done].copy()
-            self.final_states = safe[done].copy()  # the true terminal states (obs are float32, clipped)
-            # Fresh episodes for the finished entries only: each tracker resets them and feeds their
-            # initial state with a masked monitor update (the others do not advance).
+        restart = self.autoreset and done.any()
+        if restart:  # fresh episodes for the finished entries (drawn now; set after the info below)
             s0, k0 = self._sample(int(done.sum()))
             cand = np.zeros((self.B, self.n))
             cand[done] = s0
             kc = np.zeros(self.B, dtype=np.int64)
             kc[done] = k0
+        with np.errstate(over="ignore", invalid="ignore"):
+            for tr in self._late:
+                if restart:  # step, then reset the finished entries and feed their initial states
+                    tr.step_and_restart(safe, done, cand)
+                else:
+                    tr.step(safe)
+        asap_rob, asap_sat = self.asap.step_rob, self.asap.step_sat  # at the reached states
+        reward = self.reward.value(safe, asap_rob, asap_sat, failed)
+        newly = asap_sat & ~failed & (self.t_reach < 0)
+        self.t_reach[newly] = self.t[newly]
+        self.states = safe
+        self.end = end
+        obs = self.obs()
+        # Info of the finished step (before any autoreset).
+        self.info_rho = asap_rob.copy()
+        self.info_sat = asap_sat.copy()
+        self.info_t_reach = self.t_reach.copy()
+        self.info_end = end.copy()
+        self.info_t = self.t.copy()
+        final_obs = None
+        if restart:
+            final_obs = obs[done].copy()
+            self.final_states = safe[done].copy()  # the true terminal states (obs are float32, clipped)
+            # The finished entries' fresh episodes: asap and the reward trackers restarted above
+            # (reset, then a masked monitor update with the initial states; the others do not advance).
             self.states = self._set_states(cand, mask=done)
-            for tr in self.trackers:
-                tr.restart(done, cand)
+            if self.avoid is not None:
+                self.avoid.restart(done, cand)
             self.t[done] = 0
             self.k[done] = kc[done]
             self.t_reach[done] = np.where(self.asap.sat[done], 0, -1)

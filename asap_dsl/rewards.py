@@ -86,6 +86,10 @@ class FormulaTracker:
     ``states``; ``restart(mask, cand)`` restarts the masked entries at the initial states
     ``cand [B, n]`` (only the masked rows are read; without ``cand``, the candidates given to the
     last ``step`` are used). Results are in ``.rob`` / ``.sat`` (``[B]``).
+    ``step_and_restart(states, done, cand)`` is ``step(states)`` then ``restart(done, cand)`` with
+    every atom evaluated once (on the reached and the restart states together). ``.step_rob`` /
+    ``.step_sat`` hold the values at the states of the last ``step`` (before any restart), which
+    is what a reward of that step reads.
 
     Formulas of atoms only are evaluated directly. Others use one online monitor of B entries:
     a restart is ``reset(mask)`` and ``update(cand, mask=mask)``, which advances the restarted
@@ -102,6 +106,7 @@ class FormulaTracker:
         self.static = _is_static(node)
         self.rob = np.zeros(self.B)
         self.sat = np.zeros(self.B, dtype=bool)
+        self.step_rob, self.step_sat = self.rob, self.sat
         self._cand = None
         if self.static:
             return
@@ -125,14 +130,41 @@ class FormulaTracker:
             return
         self.mon.reset()
         self._update(states)
+        self.step_rob, self.step_sat = self.rob, self.sat
 
     def step(self, states: np.ndarray, cand: Optional[np.ndarray] = None) -> None:
         states = np.asarray(states, dtype=np.float64)
         self._cand = cand
         if self.static:
             self.rob, self.sat = self._eval_static(states)
+        else:
+            self._update(states)
+        self.step_rob, self.step_sat = self.rob, self.sat
+
+    def step_and_restart(self, states: np.ndarray, done: np.ndarray, cand: np.ndarray) -> None:
+        """``step(states)`` then ``restart(done, cand)``, evaluating every atom once on the reached
+        states and the restart states (the ``done`` rows of ``cand``) together. Afterwards ``.rob`` /
+        ``.sat`` are the restarted values and ``.step_rob`` / ``.step_sat`` those of ``states``."""
+        done = np.asarray(done, dtype=bool)
+        if not done.any():
+            self.step(states, cand)
             return
-        self._update(states)
+        states = np.asarray(states, dtype=np.float64)
+        c = np.asarray(cand, dtype=np.float64)
+        self._cand = cand
+        if self.static:
+            rob, sat = self._eval_static(np.concatenate([states, c[done]]))
+            B = self.B
+            self.step_rob, self.step_sat = rob[:B], sat[:B]
+            self.rob, self.sat = rob[:B].copy(), sat[:B].copy()
+            self.rob[done], self.sat[done] = rob[B:], sat[B:]
+            return
+        rho, sat = self.mon.update_and_restart(states, done, c)
+        self.step_rob, self.rob = rho, self.mon.robustness
+        if self.satisfaction:
+            self.step_sat, self.sat = sat, self.mon.satisfied
+        else:
+            self.step_sat = self.sat
 
     def restart(self, mask: np.ndarray, cand: Optional[np.ndarray] = None) -> None:
         """Restart the masked entries at ``cand [B, n]`` (default: the candidates of the last
@@ -281,6 +313,10 @@ class Reward:
         for t in self.trackers:
             t.restart(mask, cand)
 
+    def step_and_restart(self, states, done, cand):
+        for t in self.trackers:
+            t.step_and_restart(states, done, cand)
+
     def value(self, states: np.ndarray, asap_rob: np.ndarray, asap_sat: np.ndarray,
               failed: Optional[np.ndarray] = None) -> np.ndarray:
         """The reward of each entry for the step that reached ``states``."""
@@ -291,7 +327,7 @@ class Reward:
                 r = np.where(failed, rho if self.floor is None else self.floor, r)
             return r
         if self.kind == "rho":
-            r = _clip_finite(self.tracker.rob, *self.bounds)
+            r = _clip_finite(self.tracker.step_rob, *self.bounds)
         else:
             d_t = np.min([g.distance(states) for g in self.goal], axis=0)
             d_o = np.min([o.distance(states) for o in self.obstacles], axis=0) if self.obstacles else 0.0

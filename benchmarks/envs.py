@@ -6,7 +6,7 @@ info dicts); `sync` is gymnasium.vector.SyncVectorEnv of make_env (same-step aut
 The specs/ cases run ``--task`` (atom-only formulas: no online monitor); the double-integrator
 ``park`` case (``examples/``) has a past operator (``historically``), so its ``asap`` is tracked
 by an online monitor that is reset per entry on autoreset.
-Usage: python benchmarks/envs.py [--seconds 2]
+Usage: python benchmarks/envs.py [--seconds 2] [--only park]  (--only: rows whose spec or task contains it)
 """
 
 import argparse
@@ -23,7 +23,7 @@ SPECS, EXAMPLES = ROOT / "specs", ROOT / "examples"
 # (spec file, task (None: --task), num_envs)
 CASES = [(SPECS / "dc_motor.asap", None, 64), (SPECS / "dc_motor.asap", None, 1024),
          (SPECS / "attitude.asap", None, 64), (SPECS / "attitude.asap", None, 1024),
-         (SPECS / "swimmer.asap", None, 64),
+         (SPECS / "swimmer.asap", None, 64), (SPECS / "swimmer.asap", None, 256),
          (EXAMPLES / "double_integrator.asap", "park", 64), (EXAMPLES / "double_integrator.asap", "park", 1024)]
 
 
@@ -61,11 +61,14 @@ def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("--seconds", type=float, default=2.0)
     ap.add_argument("--task", default="reach_avoid")
+    ap.add_argument("--only", default=None, help="run only the rows whose spec or task name contains this")
     args = ap.parse_args()
     print(f"{'spec':17s} {'task':12s} {'envs':>5s} {'batched':>12s} {'arrays':>12s} {'sync':>12s} {'ratio':>7s}"
           "   (env steps/s)")
     for path, task, n in CASES:
         task = task or args.task
+        if args.only and args.only not in path.stem and args.only not in task:
+            continue
         venv = asap_dsl.make_vec_env(path, task, num_envs=n, seed=0)
         venv.reset()
         rng = np.random.default_rng(0)

@@ -283,3 +283,95 @@ def test_masked_update_checks_and_all_false_mask():
     before = mon.robustness.copy()
     out = mon.update(np.ones((3, 2)), mask=np.zeros(3, dtype=bool))
     assert np.array_equal(out, before, equal_nan=True) and mon.t.tolist() == [0, -1, 0]
+
+
+# ---- update_and_restart (one atom evaluation per env step) ----------------------------------
+
+@FUZZ
+@given(st.one_of(formulas(causal=True, max_leaves=4), prefix_formulas()),
+       traces(batch=3, min_T=3, max_T=16), st.data())
+def test_update_and_restart_equals_separate_calls(node, pool, data):
+    """``update_and_restart(s, done, c)`` == ``update(s)``, ``reset(done)``, ``update(c, mask=done)``
+    (robustness, satisfaction, t; the reached values it returns too), and both equal the offline
+    evaluator on each entry's own trace; also off the aligned path (arbitrary masked updates)."""
+    B, K, _ = pool.shape
+    cands = data.draw(traces(batch=B, min_T=K, max_T=K))
+    sat = data.draw(st.booleans())
+    rng = np.random.default_rng(data.draw(st.integers(0, 2**31 - 1)))
+    p = data.draw(st.sampled_from([0.0, 0.2, 0.5, 1.0]))
+    done = rng.random((K, B)) < p
+    off = rng.random(K) < data.draw(st.sampled_from([0.0, 0.2]))  # steps with a partial update
+    part = rng.random((K, B)) < 0.5
+    one = online.monitor_for(node, B, satisfaction=sat)
+    sep = online.monitor_for(node, B, satisfaction=sat)
+    prefix = isinstance(one, online.PrefixMonitor)
+    seg = [[] for _ in range(B)]
+
+    def want(b):
+        tr = np.array(seg[b])
+        i = 0 if prefix else len(tr) - 1
+        return offline.robustness(node, tr)[i], offline.satisfied(node, tr)[i]
+
+    for mon in (one, sep):
+        mon.update(pool[:, 0])
+    for b in range(B):
+        seg[b].append(pool[b, 0])
+    for k in range(1, K):
+        if off[k]:  # an arbitrary masked update, same on both
+            m = part[k]
+            for mon in (one, sep):
+                mon.update(pool[:, k], mask=m)
+            for b in np.flatnonzero(m):
+                seg[b].append(pool[b, k])
+            continue
+        rho, s = one.update_and_restart(pool[:, k], done[k], cands[:, k])
+        r_sep = sep.update(pool[:, k]).copy()
+        s_sep = sep.satisfied.copy() if sat else None
+        sep.reset(done[k])
+        sep.update(cands[:, k], mask=done[k])
+        assert np.array_equal(rho, r_sep), (ir.to_text(node), k)
+        assert (s is None) == (not sat)
+        if sat:
+            assert np.array_equal(s, s_sep), (ir.to_text(node), k)
+        for b in range(B):
+            seg[b].append(pool[b, k])
+            wr, ws = want(b)
+            assert rho[b] == wr, (ir.to_text(node), b, k, rho[b], wr)
+            if sat:
+                assert s[b] == ws
+            if done[k, b]:
+                seg[b] = [cands[b, k]]
+        assert np.array_equal(one.robustness, sep.robustness), (ir.to_text(node), k)
+        assert np.array_equal(one.t, sep.t)
+        if sat:
+            assert np.array_equal(one.satisfied, sep.satisfied)
+        for b in range(B):
+            wr, ws = want(b)
+            assert one.robustness[b] == wr, (ir.to_text(node), b, k, one.robustness[b], wr)
+            if sat:
+                assert one.satisfied[b] == ws
+
+
+@FUZZ
+@given(st.one_of(formulas(causal=True, max_leaves=4), prefix_formulas()),
+       traces(batch=3, min_T=2, max_T=12), st.data())
+def test_tracker_step_and_restart_equals_step_then_restart(node, pool, data):
+    from asap_dsl.rewards import FormulaTracker
+
+    B, K, n = pool.shape
+    cands = data.draw(traces(batch=B, min_T=K, max_T=K))
+    rng = np.random.default_rng(data.draw(st.integers(0, 2**31 - 1)))
+    done = rng.random((K, B)) < data.draw(st.sampled_from([0.0, 0.3, 1.0]))
+    sat = data.draw(st.booleans())
+    one = FormulaTracker(node, B, n, satisfaction=sat)
+    sep = FormulaTracker(node, B, n, satisfaction=sat)
+    one.restart_all(pool[:, 0])
+    sep.restart_all(pool[:, 0])
+    for k in range(1, K):
+        one.step_and_restart(pool[:, k], done[k], cands[:, k])
+        sep.step(pool[:, k])
+        r, s = sep.rob.copy(), sep.sat.copy()
+        assert np.array_equal(sep.step_rob, r)
+        sep.restart(done[k], cands[:, k])
+        assert np.array_equal(one.step_rob, r) and np.array_equal(one.step_sat, s), (ir.to_text(node), k)
+        assert np.array_equal(one.rob, sep.rob) and np.array_equal(one.sat, sep.sat), (ir.to_text(node), k)

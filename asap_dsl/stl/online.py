@@ -16,6 +16,10 @@ Public API
     ``reset(mask=None)`` starts a new trace for every entry (or those where the bool ``[B]`` mask
     is True): their next ``update`` is step 0. Resets cost O(1) per entry: nothing is cleared.
     An autoresetting vector env does ``reset(done)`` then ``update(s0, mask=done)``.
+    ``update_and_restart(states, done, cand)`` does ``update(states)``, ``reset(done)`` and
+    ``update(cand, mask=done)`` with the atoms evaluated once on the reached and restart states
+    together (the atoms' fixed per-call cost dominates at env batch sizes); it returns ρ (and ⊨)
+    of the reached states.
 ``PrefixMonitor(node, batch, *, satisfaction=True, n_state=None)``
     For boolean combinations of ``eventually[a, b] ψ``, ``always[a, b] ψ`` and ``ψ1 until[a, b] ψ2``
     with causal ψ's, and of causal parts (taken at t = 0). ``update`` returns the robustness **at
@@ -181,6 +185,16 @@ class _AtomOp(_Op):
         self.rob, self.rob_fn = self.out[: ck.B], atom.robustness
         self.sat = self.out[ck.B:] if ck.L == 2 else None
         self.sat_fn = atom.satisfied
+        self.lanes = self.out.reshape(ck.L, ck.B)  # [L, B] view of out
+
+    def values(self, s: np.ndarray) -> np.ndarray:
+        """The atom on the rows of ``s`` ([R, n]), both lanes: [L, R] (lane 1 as +1/-1)."""
+        v = np.empty((self.lanes.shape[0], s.shape[0]))
+        self._put(v[0], self.rob_fn(s))
+        if self.sat is not None:
+            b = np.asarray(self.sat_fn(s))
+            self._put(v[1], np.where(b, 1.0, -1.0) if b.ndim else (1.0 if b else -1.0))
+        return v
 
     def _put(self, dst, v):
         try:
@@ -382,6 +396,11 @@ class _Graph:
         work = [op for op in self.ops if not isinstance(op, _ConstOp)]
         self.fast = [op.fast for op in work]
         self.slow = [op.slow for op in work]
+        # Atoms depend on the states only: they can run first, or be loaded with precomputed values
+        # (``step_and_restart``); ``*_rest`` are the other operators, in topological order.
+        self.atoms = [op for op in work if isinstance(op, _AtomOp)]
+        self.fast_rest = [op.fast for op in work if not isinstance(op, _AtomOp)]
+        self.slow_rest = [op.slow for op in work if not isinstance(op, _AtomOp)]
 
     def _add(self, op) -> _Op:
         self.ops.append(op)
@@ -501,21 +520,28 @@ class _Base:
             )
         return s
 
-    def _step(self, states, mask):
-        """Validate, advance the clock and run ``self._run(fast)``; returns the [N] result."""
+    def _step(self, states, mask, load=None):
+        """Validate, advance the clock, evaluate the atoms (or ``load()`` their precomputed values:
+        then ``states`` is not read) and run ``self._run(fast)``; returns the [N] result."""
         m = self._check_mask(mask, "update")
         if m is not None and m.all():
             m = None
-        s = self._check_states(states, m)
+        s = self._check_states(states, m) if load is None else None
         ck = self._clock
-        if m is None and ck.aligned:
+        fast = m is None and ck.aligned
+        if fast:
             ck.fast_tick(s)
-            res = self._run(ck, True)
         else:
             if m is not None and not m.any():
                 return None, m
             ck.slow_begin(s, None if m is None else ck.tile(m))
-            res = self._run(ck, False)
+        if load is None:
+            for a in self._graph.atoms:
+                a.fast(ck)
+        else:
+            load()
+        res = self._run(ck, fast)
+        if not fast:
             ck.slow_end()
         B = self.batch
         if m is None:
@@ -527,6 +553,38 @@ class _Base:
             if self._track_sat:
                 self._sat = np.where(m, res[B:] > 0.0, self._sat)
         return res, m
+
+    def update_and_restart(self, states, done, cand):
+        """One autoreset env step in one call: ``update(states)``, then ``reset(done)`` and
+        ``update(cand, mask=done)`` (only the ``done`` rows of ``cand [B, n]`` are read), with every
+        atom evaluated **once**, on the reached states and the restart states together; the window
+        logic then runs for the two updates from those values. Returns ``(rho, sat)`` of the first
+        update (the reached states; ``sat`` is None with ``satisfaction=False``); afterwards
+        ``.robustness``, ``.satisfied`` and ``.t`` are those of the restarted monitor, exactly as
+        after the three separate calls."""
+        m = self._check_mask(done, "restart")
+        s = self._check_states(states)
+        if m is None or not m.any():
+            self._step(s, None)
+            return self._rob, (self._sat if self._track_sat else None)
+        rows = self._check_states(cand, m)[m]
+        B, atoms = self.batch, self._graph.atoms
+        both = np.concatenate([s, rows])
+        vals = [a.values(both) for a in atoms]
+
+        def load_reached():
+            for a, v in zip(atoms, vals):
+                a.lanes[...] = v[:, :B]
+
+        def load_restart():  # the other columns keep the reached values: never committed
+            for a, v in zip(atoms, vals):
+                a.lanes[:, m] = v[:, B:]
+
+        self._step(s, None, load_reached)
+        rho, sat = self._rob, (self._sat if self._track_sat else None)
+        self._clock.reset(self._clock.tile(m))
+        self._step(None, m, load_restart)
+        return rho, sat
 
 
 class Monitor(_Base):
@@ -546,8 +604,8 @@ class Monitor(_Base):
         self._graph = _Graph([node], self._clock)
         self._out = self._graph.outputs[0].out
 
-    def _run(self, ck, fast):
-        for f in (self._graph.fast if fast else self._graph.slow):
+    def _run(self, ck, fast):  # the atoms' values are already in place
+        for f in (self._graph.fast_rest if fast else self._graph.slow_rest):
             f(ck)
         return self._out
 
@@ -674,8 +732,8 @@ class PrefixMonitor(_Base):
             return np.maximum(a, b)
         return np.maximum(np.negative(a), b)
 
-    def _run(self, ck, fast):
-        for f in (self._graph.fast if fast else self._graph.slow):
+    def _run(self, ck, fast):  # the atoms' values are already in place
+        for f in (self._graph.fast_rest if fast else self._graph.slow_rest):
             f(ck)
         return self._combine(self._plan, [leaf.step(ck) for leaf in self._leaves])
 
