@@ -96,6 +96,30 @@ def test_swimmer_matches_gymnasium_swimmer():
         assert np.allclose(got[0], ref_obs, atol=1e-9), (got[0], ref_obs)
 
 
+def test_swimmer_batch_is_bit_identical_to_one_mjdata_per_env(monkeypatch):
+    """The threaded mujoco.batch path against the per-MjData mj_step loop (the fallback on MuJoCo < 4)."""
+    from asap_dsl.sim import mujoco_swimmer
+    from asap_dsl.sim.mujoco_swimmer import MujocoSwimmer
+
+    B = 24
+    threaded = MujocoSwimmer(B, nthread=2)
+    if threaded.data is not None:
+        pytest.skip("this MuJoCo has no mujoco.batch")
+    monkeypatch.setattr(mujoco_swimmer, "_mujoco_batch", lambda: None)  # as on MuJoCo < 4: one MjData each
+    loop = MujocoSwimmer(B)
+    assert loop.data is not None and loop.nthread == 1
+    rng = np.random.default_rng(5)
+    s0 = rng.uniform(-2, 2, size=(B, 10))  # wide: joint limits (+-100 deg) engage the constraint solver
+    assert np.array_equal(threaded.reset(s0), loop.reset(s0))
+    for t in range(40):
+        a = rng.uniform(-1.5, 1.5, size=(B, 2))
+        assert np.array_equal(threaded.step(a), loop.step(a)), t
+        if t % 10 == 3:
+            mask = rng.random(B) < 0.4
+            s = rng.uniform(-2, 2, size=(B, 10))
+            assert np.array_equal(threaded.reset(s, mask=mask), loop.reset(s, mask=mask))
+
+
 def test_swimmer_dt_mismatch_names_the_line():
     text = (SPECS / "swimmer.asap").read_text().replace("dt = 0.04", "dt = 0.05")
     prog = asap_dsl.loads(text, "swim.asap")
