@@ -17,7 +17,7 @@ import numpy as np
 from . import ast
 from .diagnostics import Collector, Span
 from .diagnostics import closest as _closest
-from .expr import BUILTIN_CONSTANTS, FUNCTION_ARITY, Symbols, compile_batched, compile_scalar, evaluate_constant, interval_range
+from .expr import BUILTIN_CONSTANTS, FUNCTION_ARITY, Symbols, names_in, nodes_in, compile_batched, compile_scalar, evaluate_constant, interval_range
 from .intervals import Interval
 from .model import (ActionVar, FormulaModel, Integrator, ProgramModel, RegionModel, RewardModel, StateVar,
                     SystemModel, TaskModel)
@@ -34,13 +34,12 @@ TRAIN_SETTINGS = {
     "vf_coef": "float", "max_grad_norm": "float", "eval_episodes": "int",
 }
 OBSERVE_ITEMS = ("state", "time")
-TASK_CLAUSES = ("asap", "avoid", "deadline", "tolerances", "episode", "reward", "r_sat", "observe", "train")
 _MAX_STEPS = 1e9  # a time of more steps than this is a typo, not an episode
 _FUTURE_TO_PAST = {"always": "historically", "eventually": "once", "until": "since"}
 
 # Kinds of names.
-CONST, STATE, ACTION, LET, REGION, FORMULA, TASK, SYSTEM, BUILTIN = (
-    "constant", "state", "action", "let", "region", "formula", "task", "system", "built-in constant")
+CONST, STATE, ACTION, LET, REGION, FORMULA, TASK, SYSTEM = (
+    "constant", "state", "action", "let", "region", "formula", "task", "system")
 
 
 class _Unresolved(Exception):
@@ -503,7 +502,7 @@ class Checker:
                 return False
             state[name] = 1
             ok = True
-            for n in _names(decls[name].value):
+            for n in names_in(decls[name].value):
                 if n.id in decls and not visit(n.id):
                     ok = False
             state[name] = 2
@@ -878,24 +877,9 @@ class Checker:
                             frozenset(self.used), dict(self.kinds))
 
 
-def _names(e: ast.Expr):
-    from .expr import names_in
-    return names_in(e)
-
-
 def _regions_of(e: ast.Expr) -> tuple[str, ...]:
     """Regions named by `in R` atoms anywhere in a condition."""
-    found: list[str] = []
-
-    def walk(x):
-        if isinstance(x, ast.InRegion):
-            found.append(x.region)
-        for child in (getattr(x, "arg", None), getattr(x, "left", None), getattr(x, "right", None)):
-            if child is not None and not isinstance(child, str):
-                walk(child)
-
-    walk(e)
-    return tuple(dict.fromkeys(found))
+    return tuple(dict.fromkeys(n.region for n in nodes_in(e) if isinstance(n, ast.InRegion)))
 
 
 def _fmt(x: float) -> str:

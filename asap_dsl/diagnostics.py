@@ -24,9 +24,6 @@ class Span:
         return f"{self.line}:{self.column}"
 
 
-NOWHERE = Span(0, 0, 0, 0)
-
-
 @dataclass(frozen=True)
 class Rule:
     code: str

@@ -233,12 +233,16 @@ _MATH = SimpleNamespace(
 )
 
 
+def nodes_in(e: ast.Expr) -> Iterable[ast.Expr]:
+    """Every node of an expression (formulas included), in source order."""
+    yield e
+    for child in _children(e):
+        yield from nodes_in(child)
+
+
 def names_in(e: ast.Expr) -> Iterable[ast.Name]:
     """Every Name node in an expression (formulas included), in source order."""
-    if isinstance(e, ast.Name):
-        yield e
-    for child in _children(e):
-        yield from names_in(child)
+    return (n for n in nodes_in(e) if isinstance(n, ast.Name))
 
 
 def _children(e) -> tuple:

@@ -58,9 +58,7 @@ class Interval:
 
     def __truediv__(self, o):
         o = Interval.of(o)
-        if o.lo <= 0.0 <= o.hi:
-            if o.lo == 0.0 == o.hi:
-                return Interval(-math.inf, math.inf)
+        if o.lo <= 0.0 <= o.hi:  # the divisor may be zero: no finite enclosure
             return Interval(-math.inf, math.inf)
         return self * Interval(1.0 / o.hi, 1.0 / o.lo)
 

@@ -203,10 +203,6 @@ def _join(a: Span, b: Span) -> Span:
     return Span(a.line, a.column, b.end_line, b.end_column)
 
 
-def _expr_span(e: Any) -> Span:
-    return e.span
-
-
 @v_args(meta=True)
 class _Builder(Transformer):
     """Lark tree -> AST nodes. Structural problems go to ``self.diag``."""
@@ -367,25 +363,33 @@ class _Builder(Transformer):
     def sep(self, meta, children):
         return ("sep", str(children[0]))
 
-    def _attach(self, items: list, bare_kind: str, head_type: type, extend) -> list:
-        """Fold comma-continued items (``const a = 1, b = 2``) into their head."""
+    def _fold_continuations(self, items: list, continue_head) -> list:
+        """Fold comma-continued items (``const a = 1, b = 2``, ``tolerances 30, 25``) into their head.
+
+        ``continue_head(kind, head, payload)`` returns the items that replace ``head`` when the
+        continuation belongs to it, else None (the continuation is then reported as misplaced).
+        """
         out: list = []
         last_sep: Optional[str] = None
+        misplaced_name = False  # `dedline 30`: report the word, not also the number after it
         for item in items:
             if isinstance(item, tuple) and item[0] == "sep":
                 last_sep = item[1]
                 continue
-            if isinstance(item, tuple) and item[0] == bare_kind:
-                payload = item[1]
-                head = next((o for o in reversed(out) if not (isinstance(o, tuple) and o[0] == "sep")), None)
-                if last_sep == "," and head is not None and isinstance(head, head_type):
-                    extend(out, payload)
-                else:
-                    self._misplaced(bare_kind, payload)
+            if isinstance(item, tuple) and item[0] in ("bare_binding", "bare_duration", "bare_name"):
+                kind, payload = item
+                folded = continue_head(kind, out[-1], payload) if last_sep == "," and out else None
+                if folded is not None:
+                    out[-1:] = folded
+                    misplaced_name = False
+                elif not (misplaced_name and kind == "bare_duration" and last_sep is None):
+                    self._misplaced(kind, payload)
+                    misplaced_name = kind == "bare_name"
                 last_sep = None
                 continue
             out.append(item)
             last_sep = None
+            misplaced_name = False
         return out
 
     def _misplaced(self, kind: str, payload: Any) -> None:
@@ -410,10 +414,10 @@ class _Builder(Transformer):
     def system(self, meta, children):
         tok = children[0]
 
-        def extend_const(out, payload):
-            out.append(payload)
+        def continue_const(kind, head, payload):
+            return [head, payload] if kind == "bare_binding" and isinstance(head, ast.ConstDecl) else None
 
-        items = self._attach(list(children[1:]), "bare_binding", ast.ConstDecl, extend_const)
+        items = self._fold_continuations(list(children[1:]), continue_const)
         consts, states, actions, lets, dts, dyn, integ = [], [], [], [], [], [], []
         for it in items:
             if isinstance(it, ast.ConstDecl):
@@ -507,33 +511,15 @@ class _Builder(Transformer):
     def task_decl(self, meta, children):
         tok = children[0]
 
-        def extend_clause(out, payload):
-            head = out[-1]
-            out[-1] = ast.Clause(head.keyword, head.value + (payload,), _join(head.span, payload[1] if isinstance(payload, tuple) else payload.span))
+        def continue_clause(kind, head, payload):
+            # `tolerances 30, 25` and `observe state, time` continue with comma-separated items.
+            want = {"bare_duration": "tolerances", "bare_name": "observe"}.get(kind)
+            if not (isinstance(head, ast.Clause) and head.keyword == want):
+                return None
+            end = payload[1] if isinstance(payload, tuple) else payload.span
+            return [ast.Clause(head.keyword, head.value + (payload,), _join(head.span, end))]
 
-        items = list(children[1:])
-        # `tolerances 30, 25` and `observe state, time` continue with comma-separated items.
-        merged: list = []
-        last_sep = None
-        misplaced_name = False  # `dedline 30`: report the word, not also the number after it
-        for item in items:
-            if isinstance(item, tuple) and item[0] == "sep":
-                last_sep = item[1]
-                continue
-            if isinstance(item, tuple) and item[0] in ("bare_duration", "bare_name"):
-                want = "tolerances" if item[0] == "bare_duration" else "observe"
-                head = merged[-1] if merged else None
-                if last_sep == "," and isinstance(head, ast.Clause) and head.keyword == want:
-                    extend_clause(merged, item[1])
-                    misplaced_name = False
-                elif not (misplaced_name and item[0] == "bare_duration" and last_sep is None):
-                    self._misplaced(item[0], item[1])
-                    misplaced_name = item[0] == "bare_name"
-                last_sep = None
-                continue
-            merged.append(item)
-            last_sep = None
-            misplaced_name = False
+        merged = self._fold_continuations(list(children[1:]), continue_clause)
         clauses = tuple(c for c in merged if isinstance(c, ast.Clause))
         return ast.TaskDecl(str(tok), clauses, _span(meta), _span_of_token(tok))
 
