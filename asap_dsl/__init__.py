@@ -11,13 +11,21 @@ from .program import Formula, Program, Task, load, loads
 
 __version__ = "0.1.0"
 
-__all__ = ["Diagnostic", "Formula", "Program", "SpecError", "Task", "load", "loads", "make_env", "make_vec_env",
-           "__version__"]
+__all__ = ["Diagnostic", "Formula", "Program", "SpecError", "Task", "evaluate", "load", "loads", "make_env",
+           "make_vec_env", "train", "__version__"]
 
 
-def __getattr__(name):  # lazy: gymnasium and stable-baselines3 load only when an env is made
+def __getattr__(name):  # lazy: gymnasium, stable-baselines3 and torch load only when needed
     if name in ("make_env", "make_vec_env"):
         from . import env
 
         return getattr(env, name)
+    if name == "train":
+        from .backends.training import train
+
+        return train
+    if name == "evaluate":
+        from .backends.evaluation import evaluate
+
+        return evaluate
     raise AttributeError(f"module 'asap_dsl' has no attribute '{name}'")

@@ -132,7 +132,7 @@ def show_data(prog: Program, only_task: Optional[str] = None) -> dict:
             "deadline_seconds": t.deadline * sys_.dt,
             "tolerances": list(t.tolerances),
             "episode": list(t.episode),
-            "reward": t.reward.kind + ("" if not t.reward.params else "(" + ", ".join(f"{k} = {_fmt(v)}" for k, v in t.reward.params.items()) + ")"),
+            "reward": t.reward.text,
             "observe": list(t.observe),
             "rho_bounds": [lo, hi],
             "rho_scale": t.rho_scale if t.r_sat is None else 1.0,
@@ -245,15 +245,20 @@ def build_parser() -> argparse.ArgumentParser:
     show.add_argument("--format", choices=("text", "json"), default="text")
     show.set_defaults(func=cmd_show)
 
-    try:
-        from .backends import oracle_cli
-    except ImportError:  # pragma: no cover - present in every install
-        oracle_cli = None
-    if oracle_cli is not None:
-        oracle = sub.add_parser("oracle", help="minimum steps per initial state (CasADi) and the best success rate "
-                                "any policy could reach")
-        oracle_cli.add_oracle_arguments(oracle)
-        oracle.set_defaults(func=oracle_cli.oracle_command)
+    from .backends import oracle_cli, train_cli
+
+    train = sub.add_parser("train", help="train a policy for a task (stable-baselines3) and evaluate it")
+    train_cli.add_train_arguments(train)
+    train.set_defaults(func=train_cli.train_command)
+
+    evaluate = sub.add_parser("eval", help="success rates of a trained run beside the oracle's ceiling")
+    train_cli.add_eval_arguments(evaluate)
+    evaluate.set_defaults(func=train_cli.eval_command)
+
+    oracle = sub.add_parser("oracle", help="minimum steps per initial state (CasADi) and the best success rate "
+                            "any policy could reach")
+    oracle_cli.add_oracle_arguments(oracle)
+    oracle.set_defaults(func=oracle_cli.oracle_command)
     return p
 
 

@@ -129,8 +129,12 @@ class _Core:
 
     # ---- episodes ----------------------------------------------------------------------------
     def reset_all(self) -> np.ndarray:
-        s0, k = self._sample(self.B)
-        self.states = self._set_states(s0)
+        return self.start(*self._sample(self.B))
+
+    def start(self, states: np.ndarray, k) -> np.ndarray:
+        """Start every entry at the given initial states ``[B, n]`` with episode lengths ``k``
+        (an int or ``[B]``); returns the observations. Evaluation starts its seeded states here."""
+        self.states = self._set_states(np.asarray(states, dtype=np.float64).reshape(self.B, self.n))
         for tr in self.trackers:
             tr.restart_all(self.states)
         self.t[:] = 0

@@ -186,6 +186,13 @@ class RewardModel:
     params: Mapping[str, float] = field(default_factory=dict)
     span: Optional[Span] = None
 
+    @property
+    def text(self) -> str:
+        """As written in a spec: ``asap``, ``rho(window = 5)``, ``distance(lambda_t = 1, ...)``."""
+        if not self.params:
+            return self.kind
+        return self.kind + "(" + ", ".join(f"{k} = {v:.6g}" for k, v in self.params.items()) + ")"
+
 
 @dataclass(frozen=True)
 class TaskModel:

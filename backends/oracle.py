@@ -71,6 +71,7 @@ from asap_dsl.dynamics import casadi_step, numpy_step
 from asap_dsl.expr import INTERVAL, casadi_namespace, compile_function, degree
 from asap_dsl.intervals import Interval
 from asap_dsl.sampling import EVAL_SEED, evaluation_states
+from asap_dsl.stats import steps_summary, wilson_interval
 from asap_dsl.stl import ir, offline
 
 #: Margin by which the goal is shrunk and ``avoid`` / the state space are kept clear in the NLP.
@@ -755,19 +756,6 @@ def nearest_neighbour_order(states: np.ndarray, system) -> list[int]:
 
 
 # --------------------------------------------------------------------------- statistics
-def wilson_interval(k: int, n: int, z: float = 1.959963984540054) -> tuple[float, float]:
-    """The 95% Wilson score interval of a proportion ``k / n``."""
-    if n <= 0:
-        return (0.0, 1.0)
-    p = k / n
-    den = 1 + z * z / n
-    centre = (p + z * z / (2 * n)) / den
-    half = z * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / den
-    lo = 0.0 if k == 0 else max(0.0, centre - half)
-    hi = 1.0 if k == n else min(1.0, centre + half)
-    return (lo, hi)
-
-
 @dataclass
 class OracleReport:
     """Results over a set of initial states: minimum steps, statuses and the success ceiling."""
@@ -807,13 +795,11 @@ class OracleReport:
                 "rate": k / n if n else float("nan"), "ci95": [lo, hi]}
 
     def distribution(self) -> dict:
-        s = self.steps[np.isfinite(self.steps)]
-        if s.size == 0:
-            return {"reached": 0}
-        q = np.percentile(s, [0, 25, 50, 75, 100])
-        hist = {int(v): int(c) for v, c in zip(*np.unique(s.astype(int), return_counts=True))}
-        return {"reached": int(s.size), "min": float(q[0]), "p25": float(q[1]), "median": float(q[2]),
-                "p75": float(q[3]), "max": float(q[4]), "mean": float(np.mean(s)), "histogram": hist}
+        out = steps_summary(self.steps)
+        if out["reached"]:
+            s = self.steps[np.isfinite(self.steps)]
+            out["histogram"] = {int(v): int(c) for v, c in zip(*np.unique(s.astype(int), return_counts=True))}
+        return out
 
     def to_dict(self, with_states: bool = True, with_actions: bool = False) -> dict:
         d = {"file": self.file, "task": self.task, "system": self.system,
@@ -962,4 +948,4 @@ def deadline_infeasible(prog, task_name: Optional[str] = None, samples: int = 32
 
 
 __all__ = ["MARGIN", "Oracle", "OracleReport", "OracleUnsupported", "StateResult", "deadline_infeasible",
-           "minimum_steps", "nearest_neighbour_order", "run", "tighten", "wilson_interval"]
+           "minimum_steps", "nearest_neighbour_order", "run", "tighten"]

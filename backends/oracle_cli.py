@@ -79,6 +79,7 @@ def oracle_command(args: argparse.Namespace, out: Optional[TextIO] = None, err: 
     """Run the oracle; exit 0 on success, 1 on a spec error or an unsupported system/task."""
     import asap_dsl
     from asap_dsl.backends.oracle import OracleUnsupported, run, tighten
+    from asap_dsl.backends.oracle_cache import store
 
     out = out or sys.stdout
     err = err or sys.stderr
@@ -107,6 +108,8 @@ def oracle_command(args: argparse.Namespace, out: Optional[TextIO] = None, err: 
         reports.append(rep)
     if len(reports) > 1:  # tasks sharing `asap`: make their local minima consistent (replay-verified)
         tighten(prog, reports)
+    for rep in reports:  # `asapc eval` and reports reuse these minima on the same states
+        store(prog.source, rep)
     if args.format == "text":
         for i, rep in enumerate(reports):
             if i:

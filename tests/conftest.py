@@ -89,3 +89,9 @@ def repo_root() -> Path:
 @pytest.fixture(scope="session")
 def spec_paths() -> list[Path]:
     return SPECS
+
+
+@pytest.fixture(autouse=True)
+def _private_cache(tmp_path_factory, monkeypatch):
+    """Oracle results cached by a test stay out of the user's cache (~/.cache/asap-dsl)."""
+    monkeypatch.setenv("ASAP_CACHE_DIR", str(tmp_path_factory.getbasetemp() / "asap-cache"))

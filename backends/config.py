@@ -1,0 +1,147 @@
+"""The resolved configuration of a training run: preset, then the task's ``train { ... }`` block,
+then explicit arguments (strongest). Pure: reads a checked program, writes nothing.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass, field, fields
+from typing import Any, Mapping, Optional
+
+from asap_dsl.rewards import resolve_reward
+from asap_dsl.sampling import EVAL_SEED
+
+from .presets import ALGORITHMS, OFF_POLICY, get_preset
+
+__all__ = ["ConfigError", "TrainConfig", "VALIDATION_SEED", "resolve_config"]
+
+#: Seed of the validation states that pick the best model during training. It is not the
+#: evaluation seed: choosing a model on the states it is then judged on would flatter it.
+VALIDATION_SEED = 7
+assert VALIDATION_SEED != EVAL_SEED
+
+# Settings of a ``train { ... }`` block that are hyperparameters of the algorithm (the rest —
+# algo, steps, seed, preset, n_envs, eval_episodes — are the run's own).
+_RUN_KEYS = ("algo", "steps", "seed", "preset", "n_envs", "eval_episodes")
+_ON_POLICY_ONLY = ("n_epochs", "gae_lambda", "vf_coef", "max_grad_norm", "ent_coef")
+_OFF_POLICY_ONLY = ("buffer_size", "tau", "learning_starts", "train_freq", "gradient_steps")
+
+
+class ConfigError(ValueError):
+    """A setting that cannot be used; the message is one sentence for the user."""
+
+
+@dataclass
+class TrainConfig:
+    """Everything that decides a training run (stored in the run's manifest)."""
+
+    task: str
+    algo: str
+    reward: str
+    seed: int
+    preset: str
+    steps: int
+    n_envs: int
+    torch_threads: int
+    observation_scaling: str
+    action_scaling: bool
+    time_limit_terminal: bool
+    validation_episodes: int
+    validation_seed: int
+    validate_every: int
+    eval_episodes: int
+    hyper: dict[str, Any] = field(default_factory=dict)
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+    @classmethod
+    def from_dict(cls, data: Mapping[str, Any]) -> "TrainConfig":
+        names = {f.name for f in fields(cls)}
+        missing = names - set(data)
+        if missing:
+            raise ConfigError(f"the stored configuration lacks {', '.join(sorted(missing))}")
+        return cls(**{k: data[k] for k in names})
+
+    @property
+    def key(self) -> dict:
+        """What makes two runs the same experiment (a sweep reuses a run when these agree)."""
+        d = self.to_dict()
+        d.pop("validate_every", None)
+        return d
+
+
+def _hyper_for(algo: str, values: Mapping[str, Any]) -> dict[str, Any]:
+    """Keep the settings that ``algo`` takes; ``n_steps`` is the rollout length of PPO/A2C and the
+    n-step return of SAC/TD3/DDPG (stable-baselines3's meaning for each)."""
+    drop = _OFF_POLICY_ONLY if algo not in OFF_POLICY else _ON_POLICY_ONLY
+    out = {k: v for k, v in values.items() if k not in drop}
+    if algo in ("td3", "ddpg"):
+        out.pop("ent_coef", None)
+    if algo == "a2c":
+        out.pop("batch_size", None)
+    if algo not in ("td3", "ddpg"):
+        out.pop("action_noise", None)
+    if algo != "a2c":
+        out.pop("rms_prop_eps", None)
+    return out
+
+
+def resolve_config(prog, task: Optional[str] = None, *, algo: Optional[str] = None, reward: Optional[str] = None,
+                   steps: Optional[int] = None, seed: Optional[int] = None, preset: Optional[str] = None,
+                   n_envs: Optional[int] = None, settings: Optional[Mapping[str, Any]] = None,
+                   eval_episodes: Optional[int] = None) -> TrainConfig:
+    """Resolve the configuration of training ``task`` of ``prog``.
+
+    ``settings`` are hyperparameters by their ``train { ... }`` names (they override the block
+    and the preset). Raises :class:`ConfigError` (one sentence) or ``KeyError`` (unknown task).
+    """
+    t = prog.task(task).model  # KeyError with a suggestion on an unknown task
+    block = dict(t.train)
+    preset_name = preset or block.get("preset") or "default"
+    try:
+        p = get_preset(preset_name)
+    except KeyError as err:
+        raise ConfigError(err.args[0]) from None
+    algo = (algo or block.get("algo") or p.algo).lower()
+    if algo not in ALGORITHMS:
+        from asap_dsl.diagnostics import closest
+
+        sug = closest(algo, ALGORITHMS)
+        raise ConfigError(f"unknown algorithm '{algo}'" + (f"; did you mean '{sug}'?" if sug else f"; choose {', '.join(ALGORITHMS)}"))
+    try:
+        reward_text = resolve_reward(t, reward).text
+    except (ValueError, TypeError) as err:
+        raise ConfigError(str(err)) from None
+    if reward_text.startswith("distance") and not t.asap_regions:
+        raise ConfigError(f"task {t.name}: the distance reward needs region atoms (`in R`) in `asap`")
+    hyper = p.settings(algo)
+    hyper.update({k: v for k, v in block.items() if k not in _RUN_KEYS})
+    hyper.update(dict(settings or {}))
+    hyper = _hyper_for(algo, hyper)
+    total = int(steps if steps is not None else block.get("steps", p.steps))
+    envs = int(n_envs if n_envs is not None else block.get("n_envs", p.n_envs))
+    run_seed = int(seed if seed is not None else block.get("seed", 0))
+    episodes = int(eval_episodes if eval_episodes is not None else block.get("eval_episodes", 1000))
+    for name, value, least in (("steps", total, 1), ("n_envs", envs, 1), ("eval_episodes", episodes, 1)):
+        if value < least:
+            raise ConfigError(f"{name} must be at least {least}; got {value}")
+    if run_seed < 0:
+        raise ConfigError(f"the seed must be 0 or more; got {run_seed}")
+    if algo in OFF_POLICY:
+        # Memory for what the run can fill, no more (the paper's buffer never drops a sample).
+        hyper["buffer_size"] = int(min(int(hyper.get("buffer_size", 1_000_000)), total + envs))
+    elif algo == "ppo":
+        rollout = int(hyper.get("n_steps", 2048)) * envs
+        batch = int(hyper.get("batch_size", 64))
+        if batch > rollout:
+            hyper["batch_size"] = rollout  # a mini-batch cannot exceed the rollout
+    every = max(envs, (total // max(1, p.validations)) // envs * envs)
+    return TrainConfig(
+        task=t.name, algo=algo, reward=reward_text, seed=run_seed, preset=p.name, steps=total, n_envs=envs,
+        torch_threads=p.torch_threads, observation_scaling=p.observation_scaling, action_scaling=p.action_scaling,
+        # With the time left in the observation the deadline is part of the state: an episode's
+        # end is a true terminal (no bootstrapping past it). Without it the agent cannot tell, and
+        # the time-out must be bootstrapped (stable-baselines3's TimeLimit.truncated handling).
+        time_limit_terminal="time" in t.observe,
+        validation_episodes=p.validation_episodes, validation_seed=VALIDATION_SEED, validate_every=every,
+        eval_episodes=episodes, hyper=hyper)

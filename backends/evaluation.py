@@ -1,0 +1,246 @@
+"""Evaluating a trained run: ``asap_dsl.evaluate`` and ``asapc eval``.
+
+The run's best model acts deterministically on the seeded evaluation states (seed 2024 by
+default, the states the oracle and every other method get) in one batched rollout
+(:mod:`asap_dsl.rollout`). The result: the success rate at each tolerance with its 95% Wilson
+interval, beside the oracle's ceiling on the same states where the dynamics are known; steps-to-
+reach statistics; failures by end reason; and the ASAP gap.
+
+Loading a model unpickles it, so a model is loaded only from the run directory the user names,
+after checking its manifest and that its spec is the one it was trained on.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Optional, Sequence, Union
+
+import numpy as np
+
+from asap_dsl.program import Program, loads, read_source
+from asap_dsl.rollout import Evaluator, RolloutResult
+from asap_dsl.runs import RunDir, RunError, atomic_write_json, spec_hash
+from asap_dsl.sampling import EVAL_SEED, evaluation_states
+from asap_dsl.stats import asap_gap, rate, steps_summary
+
+from .config import ConfigError, TrainConfig
+from .sb3 import PolicyController, Scaling, load_model
+
+__all__ = ["Evaluation", "evaluate", "load_run", "summarise"]
+
+MAX_EPISODES = 1_000_000
+
+
+@dataclass
+class Evaluation:
+    """A controller's results on seeded initial states, beside the oracle's where known."""
+
+    method: str
+    spec_file: str
+    spec_hash: str
+    task: str
+    seed: int
+    episodes: int
+    tolerances: list[int]
+    rows: list[dict]             # per tolerance: tolerance, count, states, rate, ci95, ceiling (or None)
+    steps: dict                  # steps to reach (states that reached within the deadline)
+    failures: dict               # episodes that failed before reaching, by reason
+    gap: Optional[dict]          # the ASAP gap against the oracle (None without an oracle)
+    oracle: Optional[dict]       # label and source of the ceiling (None: unknown, with reason)
+    seconds: float
+    per_state: dict = field(default_factory=dict)  # t_reach and oracle minimum per state
+    notes: list[str] = field(default_factory=list)
+
+    def to_dict(self, per_state: bool = True) -> dict:
+        d = {k: getattr(self, k) for k in ("method", "spec_file", "spec_hash", "task", "seed", "episodes",
+                                             "tolerances", "rows", "steps", "failures", "gap", "oracle", "seconds",
+                                             "notes")}
+        if per_state:
+            d["per_state"] = self.per_state
+        return d
+
+    def rate(self, tolerance: int) -> Optional[float]:
+        for r in self.rows:
+            if r["tolerance"] == tolerance:
+                return r["rate"]
+        raise KeyError(f"tolerance {tolerance} was not evaluated (evaluated: {self.tolerances})")
+
+    def render(self) -> str:
+        """The table a user reads: rate, interval and ceiling per tolerance, then the rest."""
+        def pct(x):
+            return "  n/a " if x is None else f"{100 * x:5.1f}%"
+
+        lines = [f"{self.spec_file}: task {self.task}, {self.method}: {self.episodes} initial states (seed {self.seed}), "
+                 f"deterministic policy, {self.seconds:.2f} s"]
+        oracle = self.oracle or {}
+        bound = oracle.get("bound")
+        head = f"  {'within':>6}  {'success':>7}  {'95% CI':<16}"
+        if bound:
+            head += f"  {bound:<16}  {'95% CI':<16}  {'below ceiling':>13}"
+        lines += ["", head]
+        for r in self.rows:
+            lo, hi = r["ci95"]
+            line = f"  {r['tolerance']:>6}  {pct(r['rate'])}  [{pct(lo)}, {pct(hi)}]"
+            c = r.get("ceiling")
+            if c:
+                clo, chi = c["ci95"]
+                line += f"  {pct(c['rate']):<16}  [{pct(clo)}, {pct(chi)}]  {100 * (c['rate'] - r['rate']):>10.1f} pts"
+            lines.append(line)
+        if not bound:
+            lines.append(f"  ceiling: {oracle.get('reason', 'unknown')}")
+        s = self.steps
+        lines.append("")
+        if s.get("reached"):
+            lines.append(f"  steps to reach ({s['reached']} states): min {s['min']:.0f}, 25% {s['p25']:.0f}, "
+                         f"median {s['median']:.0f}, 75% {s['p75']:.0f}, max {s['max']:.0f}, mean {s['mean']:.2f}")
+        else:
+            lines.append("  steps to reach: no state reached the goal")
+        f = self.failures
+        lines.append(f"  not reached: {sum(f.values())} (avoid {f['avoid']}, left the state space {f['out_of_bounds']}, "
+                     f"non-finite {f['non_finite']}, deadline passed {f['not_reached']})")
+        g = self.gap
+        if g is not None:
+            if g.get("gap") is None:
+                lines.append(f"  ASAP gap: n/a ({g.get('reason')})")
+            else:
+                lines.append(f"  ASAP gap: {g['gap']:.3f} (median of steps / oracle minimum over {g['states']} states "
+                             f"both reach; 75% {g['p75']:.3f}; {100 * g['share_optimal']:.1f}% in the minimum)")
+        for n in self.notes:
+            lines.append(f"  note: {n}")
+        return "\n".join(lines)
+
+
+def summarise(result: RolloutResult, *, method: str, prog: Program, task: str, seed: int,
+              tolerances: Sequence[int], oracle=None, seconds: float = 0.0) -> Evaluation:
+    """An :class:`Evaluation` from a rollout (any controller) and the cached oracle (or None)."""
+    rows = []
+    for T in tolerances:
+        row = {"tolerance": int(T), **rate(result.successes(T))}
+        row["ceiling"] = oracle.ceiling(T) if oracle is not None else None
+        rows.append(row)
+    reached = result.t_reach[np.isfinite(result.t_reach)]
+    gap = asap_gap(result.t_reach, oracle.steps) if oracle is not None else None
+    if oracle is not None:
+        info = {"bound": oracle.bound, "label": oracle.label, "seconds": oracle.seconds}
+    elif prog.system.kind == "simulator":
+        info = {"reason": "none: the system is a black box (no oracle)"}
+    else:
+        info = {"reason": "not computed (run `asapc oracle` or evaluate without --no-oracle)"}
+    per_state = {"t_reach": [None if not np.isfinite(x) else int(x) for x in result.t_reach],
+                 "end_reason": list(result.end_reason)}
+    if oracle is not None:
+        per_state["oracle_steps"] = [None if not np.isfinite(x) else int(x) for x in oracle.steps]
+    return Evaluation(method, prog.file, spec_hash(prog.source), task, int(seed), result.episodes,
+                      [int(t) for t in tolerances], rows, steps_summary(reached), result.failures(), gap, info,
+                      round(seconds, 3), per_state)
+
+
+# ------------------------------------------------------------------------------------ runs
+@dataclass
+class LoadedRun:
+    run: RunDir
+    manifest: dict
+    config: TrainConfig
+    program: Program
+    model: Any
+    scaling: Scaling
+
+    def controller(self) -> PolicyController:
+        return PolicyController(self.model, self.scaling)
+
+
+def load_run(path: Union[str, Path], spec: Union[str, Path, None] = None) -> LoadedRun:
+    """Open a run directory for evaluation: its manifest, its spec (checked by hash), its model.
+
+    ``spec``: evaluate against this spec file, which must be the one the run was trained on. By
+    default the run's own copy is used, and the original file, if it still exists at the recorded
+    path, must not have changed. Raises :class:`RunError` with one sentence.
+    """
+    run = RunDir(path)
+    manifest = run.read_manifest()
+    try:
+        config = TrainConfig.from_dict(manifest["config"])
+    except (ConfigError, TypeError) as err:
+        raise RunError(f"{run.manifest_path}: unusable configuration ({err})") from None
+    source = run.read_spec()
+    trained = manifest["spec_hash"]
+    if spec is not None:
+        other = read_source(spec)
+        if spec_hash(other) != trained:
+            raise RunError(f"{run.path} was trained on another spec than {spec} "
+                           f"(hash {trained[:12]} there, {spec_hash(other)[:12]} here)")
+    else:
+        original = Path(manifest.get("spec_file", ""))
+        if original.is_file():
+            try:
+                current = original.read_text(encoding="utf-8")
+            except (OSError, UnicodeDecodeError):
+                current = None
+            if current is not None and spec_hash(current) != trained:
+                raise RunError(f"{original} has changed since {run.path} was trained on it; retrain, or evaluate "
+                               f"the run against its own copy with --spec {run.spec_path}")
+    prog = loads(source, manifest.get("spec_file") or str(run.spec_path))
+    if config.task not in prog.tasks:
+        raise RunError(f"{run.path}: its task '{config.task}' is not in its spec")
+    model_path = run.require_model()
+    try:
+        model = load_model(config.algo, model_path)
+    except Exception as err:  # noqa: BLE001 — a damaged or foreign zip: one line, not a trace
+        raise RunError(f"{model_path}: cannot load the model ({type(err).__name__}: {str(err).splitlines()[0] if str(err) else ''})") from None
+    scaling = Scaling.for_system(prog.system, config.observation_scaling, config.action_scaling)
+    expected = scaling.observation_space(_obs_space(prog, config.task)).shape
+    if tuple(model.observation_space.shape) != tuple(expected):
+        raise RunError(f"{model_path}: the model observes {model.observation_space.shape[0]} values, "
+                       f"the task {expected[0]}: it belongs to another run")
+    return LoadedRun(run, manifest, config, prog, model, scaling)
+
+
+def _obs_space(prog: Program, task: str):
+    from asap_dsl.env import _Core
+
+    return _Core(prog, task, 1, None, autoreset=False).observation_space
+
+
+def evaluate(run: Union[str, Path], *, episodes: int = 1000, tolerances: Optional[Sequence[int]] = None,
+             seed: int = EVAL_SEED, spec: Union[str, Path, None] = None, oracle: str = "auto",
+             workers: Optional[int] = None, write: Optional[bool] = None) -> Evaluation:
+    """Evaluate a run's best model on ``episodes`` seeded initial states.
+
+    ``oracle``: ``auto`` (use the cached ceiling, computing it first where the dynamics are
+    known), ``cache`` (only a cached one) or ``off``. ``tolerances`` default to the task's. The
+    result is written to the run's ``eval.json`` when it is the run's own evaluation (its episode
+    count and seed 2024; ``write`` forces either way). Raises :class:`RunError` or ``ValueError``
+    with one sentence.
+    """
+    if oracle not in ("auto", "cache", "off"):
+        raise ValueError(f"oracle must be auto, cache or off; got {oracle!r}")
+    if not 1 <= int(episodes) <= MAX_EPISODES:
+        raise ValueError(f"episodes must be between 1 and {MAX_EPISODES:,}; got {episodes}")
+    if seed < 0:
+        raise ValueError(f"the seed must be 0 or more; got {seed}")
+    loaded = load_run(run, spec)
+    prog, cfg = loaded.program, loaded.config
+    task = prog.task(cfg.task).model
+    tols = list(tolerances) if tolerances else list(task.tolerances)
+    for T in tols:
+        if not 1 <= int(T) <= task.deadline:
+            raise ValueError(f"tolerance {T} is outside 1..{task.deadline} (the task's deadline: episodes end there)")
+    start = time.perf_counter()
+    states = evaluation_states(prog.system, int(episodes), seed=seed, avoid=task.avoid)
+    result = Evaluator(prog, cfg.task, states, reward=cfg.reward).run(loaded.controller())
+    seconds = time.perf_counter() - start
+    ceiling = None
+    if oracle != "off":
+        from .oracle_cache import oracle_for
+
+        ceiling = oracle_for(prog, cfg.task, seed, int(episodes), compute=oracle == "auto", workers=workers)
+    ev = summarise(result, method=f"{cfg.algo} ({cfg.reward} reward, {cfg.preset} preset, seed {cfg.seed})",
+                   prog=prog, task=cfg.task, seed=seed, tolerances=tols, oracle=ceiling, seconds=seconds)
+    if seed == cfg.validation_seed:
+        ev.notes.append(f"seed {seed} draws the validation states this run selected its model on: "
+                        "these rates flatter it")
+    if write if write is not None else (seed == EVAL_SEED and int(episodes) == cfg.eval_episodes and not tolerances):
+        atomic_write_json(loaded.run.eval_path, ev.to_dict())
+    return ev

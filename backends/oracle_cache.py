@@ -1,0 +1,92 @@
+"""The oracle's results on the seeded evaluation states, cached per spec hash, task, seed and count.
+
+``asapc oracle``, ``asapc eval`` and reports compute the same minimum times for the same states;
+the first one to need them stores them here and the others read them back. The cache lives in
+``$ASAP_CACHE_DIR`` (default ``$XDG_CACHE_HOME/asap-dsl`` or ``~/.cache/asap-dsl``), one JSON file
+per (spec hash, task, seed, episodes), written atomically. A changed spec has another hash, so a
+stale entry is never read.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+from typing import Optional
+
+import numpy as np
+
+from asap_dsl.runs import atomic_write_json, spec_hash
+
+__all__ = ["CachedOracle", "cache_dir", "cache_path", "load", "store", "oracle_for"]
+
+
+def cache_dir() -> Path:
+    if os.environ.get("ASAP_CACHE_DIR"):
+        return Path(os.environ["ASAP_CACHE_DIR"])
+    base = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
+    return Path(base) / "asap-dsl"
+
+
+def cache_path(source: str, task: str, seed: int, episodes: int) -> Path:
+    return cache_dir() / "oracle" / f"{spec_hash(source)[:16]}-{task}-s{seed}-n{episodes}.json"
+
+
+class CachedOracle:
+    """The oracle's per-state results as stored: minimum steps (``inf`` where none within the
+    deadline), the label (exact | local) and the action sequences that achieve them."""
+
+    def __init__(self, data: dict):
+        self.data = data
+        states = data.get("states") or []
+        self.steps = np.array([np.inf if s.get("steps") is None else float(s["steps"]) for s in states], float)
+        self.x0 = np.array([s["x0"] for s in states], float) if states else np.zeros((0, 0))
+        self.actions = [None if s.get("actions") is None else np.asarray(s["actions"], float) for s in states]
+        self.label = data.get("label", "local")
+        self.seconds = float(data.get("seconds", 0.0))
+
+    @property
+    def bound(self) -> str:
+        return f"oracle ({self.label})"
+
+    def ceiling(self, tolerance: int) -> dict:
+        from asap_dsl.stats import rate
+
+        return {"tolerance": int(tolerance), **rate(self.steps <= tolerance)}
+
+
+def load(source: str, task: str, seed: int, episodes: int) -> Optional[CachedOracle]:
+    path = cache_path(source, task, seed, episodes)
+    try:
+        data = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return None  # absent or damaged: recomputed by whoever needs it
+    if not isinstance(data, dict) or len(data.get("states") or []) != episodes:
+        return None
+    return CachedOracle(data)
+
+
+def store(source: str, report) -> Path:
+    """Store an :class:`~asap_dsl.backends.oracle.OracleReport` computed on the seeded states."""
+    path = cache_path(source, report.task, report.seed, len(report.results))
+    atomic_write_json(path, report.to_dict(with_states=True, with_actions=True))
+    return path
+
+
+def oracle_for(prog, task: str, seed: int, episodes: int, compute: bool = True,
+               workers: Optional[int] = None) -> Optional[CachedOracle]:
+    """The cached results, computed (and stored) first when absent and ``compute``; None for a
+    black-box system or a task the oracle cannot express (nothing to compare against)."""
+    hit = load(prog.source, task, seed, episodes)
+    if hit is not None or not compute or prog.system.kind == "simulator":
+        return hit
+    from .oracle import OracleUnsupported, run
+
+    if workers is None:
+        workers = max(1, len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1))
+    try:
+        report = run(prog, task, episodes=episodes, seed=seed, workers=workers)
+    except OracleUnsupported:
+        return None
+    store(prog.source, report)
+    return load(prog.source, task, seed, episodes)

@@ -1,0 +1,98 @@
+"""Training presets: the paper's settings as published, and the default chosen by measurement.
+
+A preset fills in everything a training run needs that the user did not say. Precedence, from
+strongest: ``asapc train`` flags, the task's ``train { ... }`` block, the preset.
+
+* ``paper`` — the appendix of the ASAP-Phi paper: its A2C/PPO and DDPG/TD3/SAC hyperparameters
+  (learning rate, batch, buffer, gamma, soft update; A2C every 5 steps with RMSProp eps 1e-5,
+  PPO every 2048 steps, 10 epochs, GAE 0.95; value coefficient 0.5 and gradient norm 0.5), one
+  environment, one gradient step per environment step, stable-baselines3's default networks,
+  raw observations, and the paper's budget of 1e6 steps (3e6 / 6e6 for its larger benchmarks
+  are given by the specs' ``train`` blocks or ``--steps``).
+* ``default`` — what reached the oracle's ceiling soonest in wall time on a 2-core CPU
+  (``benchmarks/train.py`` measures it against ``paper`` side by side; docs/training.md gives the
+  evidence): several environments stepped together in numpy, small networks, observations
+  scaled into [-1, 1] from the init box, actions scaled into [-1, 1].
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any, Mapping
+
+__all__ = ["ALGORITHMS", "OFF_POLICY", "PRESETS", "Preset", "get_preset"]
+
+ALGORITHMS = ("sac", "td3", "ddpg", "ppo", "a2c")
+OFF_POLICY = ("sac", "td3", "ddpg")
+
+
+@dataclass(frozen=True)
+class Preset:
+    """Defaults for a training run; ``algos[algo]`` holds stable-baselines3 keyword arguments
+    plus ``net_arch`` and ``action_noise`` (TD3/DDPG: the std of Gaussian exploration noise in
+    units of the action's half-range)."""
+
+    name: str
+    description: str
+    algo: str
+    steps: int
+    n_envs: int
+    torch_threads: int
+    observation_scaling: str  # "none" | "init" | "state": observations mapped into [-1, 1] from that box
+    action_scaling: bool      # the policy acts in [-1, 1]^m, mapped onto the action bounds
+    validation_episodes: int
+    validations: int          # periodic validations over a run
+    algos: Mapping[str, Mapping[str, Any]] = field(default_factory=dict)
+
+    def settings(self, algo: str) -> dict[str, Any]:
+        return dict(self.algos[algo])
+
+
+_PAPER_OFF = {"buffer_size": 1_000_000, "gamma": 0.99, "tau": 0.005, "train_freq": 1, "gradient_steps": 1,
+              "learning_starts": 100}
+
+PAPER = Preset(
+    name="paper",
+    description="the ASAP-Phi paper's appendix settings, one environment, as published",
+    algo="sac", steps=1_000_000, n_envs=1, torch_threads=0, observation_scaling="none", action_scaling=False,
+    validation_episodes=500, validations=50,
+    algos={
+        "sac": {**_PAPER_OFF, "learning_rate": 3e-4, "batch_size": 256, "net_arch": [256, 256]},
+        "td3": {**_PAPER_OFF, "learning_rate": 3e-4, "batch_size": 100, "net_arch": [256, 256], "action_noise": 0.1},
+        "ddpg": {**_PAPER_OFF, "learning_rate": 1e-3, "batch_size": 100, "net_arch": [256, 256], "action_noise": 0.1},
+        "a2c": {"learning_rate": 7e-4, "n_steps": 5, "gamma": 0.99, "vf_coef": 0.5, "rms_prop_eps": 1e-5,
+                "max_grad_norm": 0.5, "net_arch": [64, 64]},
+        "ppo": {"learning_rate": 3e-4, "n_steps": 2048, "gamma": 0.99, "vf_coef": 0.5, "max_grad_norm": 0.5,
+                "gae_lambda": 0.95, "n_epochs": 10, "batch_size": 64, "net_arch": [64, 64]},
+    },
+)
+
+_FAST_OFF = {"buffer_size": 1_000_000, "gamma": 0.99, "tau": 0.005, "train_freq": 1, "gradient_steps": 1,
+             "learning_starts": 1000, "batch_size": 256, "net_arch": [64, 64]}
+
+DEFAULT = Preset(
+    name="default",
+    description="chosen by measurement on a 2-core CPU: 8 environments in numpy, 64x64 networks, "
+                "observations and actions scaled into [-1, 1]",
+    algo="sac", steps=200_000, n_envs=8, torch_threads=0, observation_scaling="init", action_scaling=True,
+    validation_episodes=500, validations=30,
+    algos={
+        "sac": {**_FAST_OFF, "learning_rate": 3e-4},
+        "td3": {**_FAST_OFF, "learning_rate": 3e-4, "action_noise": 0.1},
+        "ddpg": {**_FAST_OFF, "learning_rate": 1e-3, "action_noise": 0.1},
+        "a2c": {"learning_rate": 7e-4, "n_steps": 5, "gamma": 0.99, "vf_coef": 0.5, "rms_prop_eps": 1e-5,
+                "max_grad_norm": 0.5, "net_arch": [64, 64]},
+        "ppo": {"learning_rate": 3e-4, "n_steps": 256, "gamma": 0.99, "vf_coef": 0.5, "max_grad_norm": 0.5,
+                "gae_lambda": 0.95, "n_epochs": 10, "batch_size": 256, "net_arch": [64, 64]},
+    },
+)
+
+PRESETS: dict[str, Preset] = {p.name: p for p in (DEFAULT, PAPER)}
+
+
+def get_preset(name: str) -> Preset:
+    """The preset of that name; ``KeyError`` with the known names otherwise."""
+    try:
+        return PRESETS[name]
+    except KeyError:
+        raise KeyError(f"unknown preset '{name}'; choose {' or '.join(PRESETS)}") from None

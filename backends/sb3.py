@@ -1,0 +1,154 @@
+"""stable-baselines3 glue: building and loading models, the scaled environment they train in, and
+the controller that lets a trained policy act in :func:`asap_dsl.rollout.rollout`.
+
+One :class:`Scaling` maps the environment's observations and actions to what the policy sees
+(training wraps the vector env with it; the controller applies the same maps at evaluation), so a
+policy is always judged on exactly the inputs it was trained on.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Optional
+
+import numpy as np
+from gymnasium import spaces
+
+__all__ = ["ALGO_CLASSES", "PolicyController", "Scaling", "ScaledVecEnv", "build_model", "load_model"]
+
+
+def _algo_classes() -> dict:
+    from stable_baselines3 import A2C, DDPG, PPO, SAC, TD3
+
+    return {"sac": SAC, "td3": TD3, "ddpg": DDPG, "ppo": PPO, "a2c": A2C}
+
+
+ALGO_CLASSES = ("sac", "td3", "ddpg", "ppo", "a2c")
+
+
+@dataclass(frozen=True)
+class Scaling:
+    """Affine maps between the environment and the policy.
+
+    Observations: the state entries become ``(s - centre) / half_width`` of the chosen box (the
+    time entry of ``observe state, time`` is already in [0, 1]); actions: the policy's [-1, 1]^m
+    onto the action bounds. ``observation = "none"`` and ``action = False`` are identities.
+    """
+
+    obs_centre: np.ndarray
+    obs_half: np.ndarray
+    act_low: Optional[np.ndarray]
+    act_high: Optional[np.ndarray]
+
+    @classmethod
+    def for_system(cls, system, observation: str = "none", action: bool = False) -> "Scaling":
+        n = system.n_state
+        if observation == "none":
+            centre, half = np.zeros(n), np.ones(n)
+        elif observation in ("init", "state"):
+            lo = system.init_low if observation == "init" else system.state_low
+            hi = system.init_high if observation == "init" else system.state_high
+            centre, half = (lo + hi) / 2.0, (hi - lo) / 2.0
+            bad = ~np.isfinite(centre) | ~np.isfinite(half) | (half <= 0)
+            if bad.any():  # an unbounded or degenerate side: leave that entry as it is
+                centre, half = np.where(bad, 0.0, centre), np.where(bad, 1.0, half)
+        else:
+            raise ValueError(f"observation scaling must be none, init or state; got '{observation}'")
+        return cls(centre, half, system.action_low.copy() if action else None,
+                   system.action_high.copy() if action else None)
+
+    def observation(self, obs: np.ndarray) -> np.ndarray:
+        o = np.array(obs, dtype=np.float32, copy=True)
+        n = self.obs_centre.size
+        o[..., :n] = ((o[..., :n] - self.obs_centre) / self.obs_half).astype(np.float32)
+        return o
+
+    def observation_space(self, space: spaces.Box) -> spaces.Box:
+        n = self.obs_centre.size
+        low, high = space.low.astype(np.float64).copy(), space.high.astype(np.float64).copy()
+        with np.errstate(invalid="ignore", over="ignore"):
+            low[:n] = (low[:n] - self.obs_centre) / self.obs_half
+            high[:n] = (high[:n] - self.obs_centre) / self.obs_half
+        f32 = float(np.finfo(np.float32).max)
+        low, high = np.clip(low, -f32, f32), np.clip(high, -f32, f32)
+        return spaces.Box(low.astype(np.float32), high.astype(np.float32), dtype=np.float32)
+
+    def action(self, a: np.ndarray) -> np.ndarray:
+        """The policy's action in the environment's units."""
+        a = np.asarray(a, dtype=np.float64)
+        if self.act_low is None:
+            return a
+        return self.act_low + (np.clip(a, -1.0, 1.0) + 1.0) * 0.5 * (self.act_high - self.act_low)
+
+    def action_space(self, space: spaces.Box) -> spaces.Box:
+        if self.act_low is None:
+            return space
+        return spaces.Box(-1.0, 1.0, shape=space.shape, dtype=np.float32)
+
+
+def _wrapper_base():
+    from stable_baselines3.common.vec_env import VecEnvWrapper
+
+    return VecEnvWrapper
+
+
+class ScaledVecEnv(_wrapper_base()):
+    """The vector env as the policy sees it (observations and actions through a :class:`Scaling`)."""
+
+    def __init__(self, venv, scaling: Scaling):
+        self.scaling = scaling
+        super().__init__(venv, observation_space=scaling.observation_space(venv.observation_space),
+                         action_space=scaling.action_space(venv.action_space))
+
+    def reset(self):
+        return self.scaling.observation(self.venv.reset())
+
+    def step_async(self, actions) -> None:
+        self.venv.step_async(self.scaling.action(actions))
+
+    def step_wait(self):
+        obs, reward, done, infos = self.venv.step_wait()
+        if done.any():
+            for i in np.flatnonzero(done):
+                infos[i]["terminal_observation"] = self.scaling.observation(infos[i]["terminal_observation"])
+        return self.scaling.observation(obs), reward, done, infos
+
+
+class PolicyController:
+    """A trained policy as a controller: deterministic actions, one batched call per step."""
+
+    def __init__(self, model, scaling: Scaling, deterministic: bool = True):
+        self.model, self.scaling, self.deterministic = model, scaling, deterministic
+
+    def reset(self, states: np.ndarray) -> None:
+        pass
+
+    def act(self, obs: np.ndarray, states: np.ndarray, t: int) -> np.ndarray:
+        a, _ = self.model.predict(self.scaling.observation(obs), deterministic=self.deterministic)
+        return self.scaling.action(a)
+
+
+def build_model(algo: str, env, settings: dict[str, Any], seed: int, tensorboard_log: Optional[str] = None):
+    """A fresh stable-baselines3 model; ``settings`` are the resolved hyperparameters (with
+    ``net_arch`` and, for TD3/DDPG, ``action_noise`` as a fraction of the action half-range)."""
+    from stable_baselines3.common.noise import NormalActionNoise
+
+    cls = _algo_classes()[algo]
+    kw = dict(settings)
+    net_arch = kw.pop("net_arch", None)
+    noise = kw.pop("action_noise", None)
+    if noise:
+        m = env.action_space.shape[0]
+        half = (env.action_space.high - env.action_space.low) / 2.0
+        kw["action_noise"] = NormalActionNoise(np.zeros(m), float(noise) * half.astype(np.float64))
+    policy_kwargs = {"net_arch": list(net_arch)} if net_arch is not None else None
+    return cls("MlpPolicy", env, seed=seed, device="cpu", policy_kwargs=policy_kwargs,
+               tensorboard_log=tensorboard_log, verbose=0, **kw)
+
+
+def load_model(algo: str, path: Path, env=None):
+    """Load a model saved by :func:`build_model`'s model (a pickle: only from a run directory the
+    user named)."""
+    cls = _algo_classes()[algo]
+    return cls.load(str(path), env=env, device="cpu")

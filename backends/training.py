@@ -1,0 +1,431 @@
+"""Training runs: ``asap_dsl.train`` and ``asapc train``.
+
+A run trains one task of a spec with stable-baselines3, validates the policy periodically on
+initial states of its own seed (:data:`~asap_dsl.backends.config.VALIDATION_SEED`, never the
+evaluation seed) and keeps the best model, writes curves (CSV and TensorBoard), checkpoints the
+model, replay buffer and random state periodically and on Ctrl-C / SIGTERM, and finally evaluates
+the best model on the seeded evaluation states. ``resume=True`` continues a checkpoint with the
+same step count, replay buffer and random state. The directory layout is :mod:`asap_dsl.runs`.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import pickle
+import random
+import shutil
+import signal
+import threading
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Mapping, Optional, Protocol, Union
+
+import numpy as np
+
+from asap_dsl.program import Program, load
+from asap_dsl.rollout import Evaluator
+from asap_dsl.runs import (RunDir, RunError, atomic_path, atomic_write, atomic_write_json, default_run_name,
+                           package_versions, spec_hash)
+from asap_dsl.sampling import evaluation_states
+
+from .config import ConfigError, TrainConfig, resolve_config
+from .presets import OFF_POLICY
+from .sb3 import PolicyController, Scaling, ScaledVecEnv, build_model, load_model
+
+__all__ = ["TrainProgress", "TrainResult", "train", "validation_score"]
+
+CHECKPOINT_SECONDS = 120.0  # wall time between periodic checkpoints
+
+
+class TrainProgress(Protocol):
+    """What a live display is told (the CLI draws it with rich; a sweep aggregates it)."""
+
+    def start(self, config: TrainConfig, done: int, ceiling: Optional[dict]) -> None: ...
+
+    def advance(self, done: int) -> None: ...
+
+    def validated(self, row: dict) -> None: ...
+
+    def finish(self) -> None: ...
+
+
+@dataclass
+class TrainResult:
+    """What a run produced. ``evaluation`` is the final evaluation (None when interrupted)."""
+
+    run_dir: Path
+    config: TrainConfig
+    steps: int
+    seconds: float
+    status: str  # finished | interrupted
+    best: Optional[dict]
+    evaluation: Any = None
+    curves: list = field(default_factory=list)
+
+    @property
+    def interrupted(self) -> bool:
+        return self.status == "interrupted"
+
+
+def validation_score(rates: Mapping[int, float]) -> float:
+    """How validations rank models: the mean success rate over the task's tolerances."""
+    return float(np.mean(list(rates.values()))) if rates else 0.0
+
+
+# ------------------------------------------------------------------------------------ stopping
+class _StopFlag:
+    """Ctrl-C and SIGTERM ask the run to stop at the next step (then it checkpoints)."""
+
+    def __init__(self):
+        self.signal: Optional[int] = None
+        self._old: dict = {}
+
+    def __enter__(self):
+        if threading.current_thread() is threading.main_thread():
+            for sig in (signal.SIGINT, signal.SIGTERM):
+                self._old[sig] = signal.signal(sig, self._handle)
+        return self
+
+    def _handle(self, signum, frame):
+        if self.signal is not None and signum == signal.SIGINT:  # a second Ctrl-C: stop now
+            raise KeyboardInterrupt
+        self.signal = signum
+
+    def __exit__(self, *exc):
+        for sig, old in self._old.items():
+            signal.signal(sig, old)
+        return False
+
+
+# ------------------------------------------------------------------------------------ checkpoints
+def _rng_state(venv) -> dict:
+    import torch
+
+    return {"python": random.getstate(), "numpy": np.random.get_state(), "torch": torch.get_rng_state(),
+            "env": venv.core.rng.bit_generator.state}
+
+
+def _set_rng_state(state: dict, venv) -> None:
+    import torch
+
+    random.setstate(state["python"])
+    np.random.set_state(state["numpy"])
+    torch.set_rng_state(state["torch"])
+    venv.core.rng.bit_generator.state = state["env"]
+
+
+def _save_checkpoint(run: RunDir, model, venv, algo: str, extra: dict) -> None:
+    """Write the checkpoint into a fresh directory, then swap it in (the old one survives until
+    the new one is complete)."""
+    final = run.checkpoint_dir
+    tmp = final.with_name(final.name + ".new")
+    old = final.with_name(final.name + ".old")
+    shutil.rmtree(tmp, ignore_errors=True)
+    tmp.mkdir(parents=True)
+    model.save(str(tmp / "model.zip"))
+    if algo in OFF_POLICY:
+        model.save_replay_buffer(str(tmp / "replay.pkl"))
+    with open(tmp / "state.pkl", "wb") as f:
+        pickle.dump({"rng": _rng_state(venv), **extra}, f)
+    atomic_write_json(tmp / "state.json", {k: v for k, v in extra.items() if k != "curves"})
+    shutil.rmtree(old, ignore_errors=True)
+    if final.exists():
+        final.rename(old)
+    tmp.rename(final)
+    shutil.rmtree(old, ignore_errors=True)
+
+
+def _checkpoint_dir(run: RunDir) -> Optional[Path]:
+    """The newest complete checkpoint (an interrupted swap leaves ``checkpoint.old``)."""
+    for d in (run.checkpoint_dir, run.checkpoint_dir.with_name(run.checkpoint_dir.name + ".old")):
+        if (d / "state.pkl").is_file() and (d / "model.zip").is_file():
+            return d
+    return None
+
+
+def _write_curves(path: Path, rows: list[dict], tolerances) -> None:
+    buf = io.StringIO()
+    cols = ["steps", "seconds", "score", "best"] + [f"success_{T}" for T in tolerances]
+    w = csv.DictWriter(buf, fieldnames=cols, extrasaction="ignore", lineterminator="\n")
+    w.writeheader()
+    for r in rows:
+        w.writerow({**r, **{f"success_{T}": f"{v:.6f}" for T, v in r["rates"].items()}})
+    atomic_write(path, buf.getvalue())
+
+
+# ------------------------------------------------------------------------------------ the run
+def _callbacks():
+    from stable_baselines3.common.callbacks import BaseCallback
+
+    class RunCallback(BaseCallback):
+        """Validation, checkpoints, progress and stopping, in one pass per environment step."""
+
+        def __init__(self, session: "_Session"):
+            super().__init__()
+            self.s = session
+
+        def _on_step(self) -> bool:
+            s = self.s
+            n = self.num_timesteps
+            if s.progress is not None:
+                s.progress.advance(n)
+            if n >= s.next_validation:
+                s.validate(self.model, n, self.logger)
+                while s.next_validation <= n:
+                    s.next_validation += s.cfg.validate_every
+            if s.stop.signal is not None:
+                return False
+            if time.perf_counter() - s.last_checkpoint >= CHECKPOINT_SECONDS:
+                s.checkpoint(self.model)
+            return True
+
+    return RunCallback
+
+
+class _Session:
+    """One process's share of a run: from a fresh start or a checkpoint to the end or a stop."""
+
+    def __init__(self, prog: Program, cfg: TrainConfig, run: RunDir, progress: Optional[TrainProgress]):
+        import torch
+
+        from asap_dsl.env import make_vec_env
+
+        self.prog, self.cfg, self.run, self.progress = prog, cfg, run, progress
+        if cfg.torch_threads > 0:
+            torch.set_num_threads(cfg.torch_threads)
+        self.task = prog.task(cfg.task).model
+        self.tolerances = sorted(self.task.tolerances)
+        self.scaling = Scaling.for_system(prog.system, cfg.observation_scaling, cfg.action_scaling)
+        self.raw_env = make_vec_env(prog, cfg.task, num_envs=cfg.n_envs, seed=cfg.seed, reward=cfg.reward)
+        self.env = _TimeLimitEnv(ScaledVecEnv(self.raw_env, self.scaling), cfg.time_limit_terminal)
+        val_states = evaluation_states(prog.system, cfg.validation_episodes, seed=cfg.validation_seed,
+                                       avoid=self.task.avoid)
+        self.validator = Evaluator(prog, cfg.task, val_states, reward=cfg.reward)
+        self.curves: list[dict] = []
+        self.best: Optional[dict] = None
+        self.next_validation = cfg.validate_every
+        self.seconds_before = 0.0
+        self.stop = _StopFlag()
+        self.last_checkpoint = time.perf_counter()
+        self.started = time.perf_counter()
+
+    @property
+    def seconds(self) -> float:
+        return self.seconds_before + (time.perf_counter() - self.started)
+
+    def ceiling(self) -> Optional[dict]:
+        """The oracle's ceiling per tolerance on the evaluation states, when it is cached (shown
+        beside the validation rates; the oracle is never computed during training)."""
+        from asap_dsl.sampling import EVAL_SEED
+
+        from .oracle_cache import load as load_cached
+
+        hit = load_cached(self.prog.source, self.cfg.task, EVAL_SEED, self.cfg.eval_episodes)
+        return None if hit is None else {T: hit.ceiling(T)["rate"] for T in self.tolerances}
+
+    # -- validation
+    def validate(self, model, steps: int, logger=None) -> dict:
+        res = self.validator.run(PolicyController(model, self.scaling))
+        rates = {T: res.rate(T) for T in self.tolerances}
+        score = validation_score(rates)
+        better = self.best is None or score > self.best["score"]
+        row = {"steps": int(steps), "seconds": round(self.seconds, 3), "score": round(score, 6), "rates": rates,
+               "best": int(better)}
+        self.curves.append(row)
+        if better:
+            self.best = dict(row)
+            with atomic_path(self.run.model_path) as tmp:
+                model.save(str(tmp))
+        _write_curves(self.run.curves_path, self.curves, self.tolerances)
+        if logger is not None:
+            for T, v in rates.items():
+                logger.record(f"validation/success_{T}", v)
+            logger.record("validation/score", score)
+        if self.progress is not None:
+            self.progress.validated(row)
+        return row
+
+    # -- checkpoints
+    def state(self, model) -> dict:
+        return {"steps": int(model.num_timesteps), "seconds": self.seconds, "best": self.best,
+                "curves": self.curves, "next_validation": self.next_validation}
+
+    def checkpoint(self, model) -> None:
+        _save_checkpoint(self.run, model, self.raw_env, self.cfg.algo, self.state(model))
+        self.run.update_manifest(steps_done=int(model.num_timesteps), seconds=round(self.seconds, 3))
+        self.last_checkpoint = time.perf_counter()
+
+    def restore(self, directory: Path):
+        with open(directory / "state.pkl", "rb") as f:
+            state = pickle.load(f)
+        model = load_model(self.cfg.algo, directory / "model.zip", env=self.env)
+        if self.cfg.algo in OFF_POLICY and (directory / "replay.pkl").is_file():
+            model.load_replay_buffer(str(directory / "replay.pkl"))
+        _set_rng_state(state["rng"], self.raw_env)
+        self.best, self.curves = state["best"], list(state["curves"])
+        self.next_validation = int(state["next_validation"])
+        self.seconds_before = float(state["seconds"])
+        if int(model.num_timesteps) != int(state["steps"]):
+            raise RunError(f"{self.run.path}: the checkpoint is inconsistent (model at step {model.num_timesteps}, "
+                           f"state at step {state['steps']}); start over with --force")
+        return model
+
+    # -- the loop
+    def learn(self, model) -> str:
+        remaining = self.cfg.steps - int(model.num_timesteps)
+        if self.progress is not None:
+            self.progress.start(self.cfg, int(model.num_timesteps), self.ceiling())
+        self.started = time.perf_counter()
+        self.last_checkpoint = self.started
+        try:
+            if remaining > 0 and self.stop.signal is None:
+                model.learn(total_timesteps=remaining, callback=_callbacks()(self),
+                            reset_num_timesteps=model.num_timesteps == 0, tb_log_name="train", progress_bar=False)
+            stopped = self.stop.signal is not None
+            if not stopped and (not self.curves or self.curves[-1]["steps"] != model.num_timesteps):
+                self.validate(model, int(model.num_timesteps), None)
+            self.checkpoint(model)
+        finally:
+            if self.progress is not None:
+                self.progress.finish()
+        return "interrupted" if stopped else "finished"
+
+
+def _time_limit_base():
+    from stable_baselines3.common.vec_env import VecEnvWrapper
+
+    return VecEnvWrapper
+
+
+class _TimeLimitEnv(_time_limit_base()):
+    """With the time left in the observation, the deadline ends a finite-horizon problem: the
+    time-out is terminal (no bootstrapping past it). Otherwise a pass-through."""
+
+    def __init__(self, venv, terminal: bool):
+        super().__init__(venv)
+        self.terminal = terminal
+
+    def reset(self):
+        return self.venv.reset()
+
+    def step_wait(self):
+        obs, reward, done, infos = self.venv.step_wait()
+        if self.terminal and done.any():
+            for i in np.flatnonzero(done):
+                infos[i]["TimeLimit.truncated"] = False
+        return obs, reward, done, infos
+
+
+# ------------------------------------------------------------------------------------ entry point
+def _program(spec: Union[str, Path, Program]) -> Program:
+    return spec if isinstance(spec, Program) else load(spec)
+
+
+def _explicit_conflicts(stored: TrainConfig, fresh: TrainConfig, given: Mapping[str, Any]) -> list[str]:
+    out = []
+    for name, value in given.items():
+        if value is None or name == "steps":
+            continue
+        if name == "settings":
+            for k, v in value.items():
+                if stored.hyper.get(k) != v:
+                    out.append(f"{k} = {v} (the run has {stored.hyper.get(k)})")
+            continue
+        if getattr(fresh, name) != getattr(stored, name):
+            out.append(f"--{name.replace('_', '-')} {getattr(fresh, name)} (the run has {getattr(stored, name)})")
+    return out
+
+
+def train(spec: Union[str, Path, Program], task: Optional[str] = None, *, algo: Optional[str] = None,
+          reward: Optional[str] = None, steps: Optional[int] = None, seed: Optional[int] = None,
+          preset: Optional[str] = None, n_envs: Optional[int] = None, out: Union[str, Path, None] = None,
+          runs_dir: Union[str, Path] = "runs", resume: bool = False, force: bool = False,
+          settings: Optional[Mapping[str, Any]] = None, progress: Optional[TrainProgress] = None,
+          evaluate: bool = True, eval_episodes: Optional[int] = None) -> TrainResult:
+    """Train ``task`` of a spec and evaluate the best model; returns a :class:`TrainResult`.
+
+    Precedence of settings: these arguments, then the task's ``train { ... }`` block, then the
+    preset (``default`` or ``paper``; :mod:`asap_dsl.backends.presets`). ``out`` is the run
+    directory (default ``runs/<spec>-<task>-<algo>-<reward>-s<seed>``). An existing run is never
+    replaced unless ``force``; ``resume`` continues its checkpoint (with ``steps``, a new total).
+    Ctrl-C or SIGTERM stop the run after a checkpoint: the result's status is ``interrupted``.
+
+    Raises :class:`asap_dsl.SpecError` (the spec), :class:`ConfigError` (a setting),
+    :class:`asap_dsl.runs.RunError` (the run directory) or ``KeyError`` (an unknown task).
+    """
+    prog = _program(spec)
+    cfg = resolve_config(prog, task, algo=algo, reward=reward, steps=steps, seed=seed, preset=preset,
+                         n_envs=n_envs, settings=settings, eval_episodes=eval_episodes)
+    run = RunDir(out if out is not None else Path(runs_dir) / default_run_name(prog.file, cfg.task, cfg.algo,
+                                                                             cfg.reward, cfg.seed))
+    source_hash = spec_hash(prog.source)
+    if resume:
+        manifest = run.read_manifest()
+        if manifest.get("spec_hash") != source_hash:
+            raise RunError(f"{run.path}: {prog.file} has changed since this run was trained; "
+                           "train a new run (or --force to replace this one)")
+        stored = TrainConfig.from_dict(manifest["config"])
+        given = {"task": task, "algo": algo, "reward": reward, "seed": seed, "preset": preset, "n_envs": n_envs,
+                 "settings": dict(settings or {})}
+        conflicts = _explicit_conflicts(stored, cfg, given)
+        if conflicts:
+            raise RunError(f"{run.path}: --resume continues the run as it was configured; it differs in "
+                           + "; ".join(conflicts))
+        if steps is not None:
+            stored.steps = int(steps)
+        cfg = stored
+    else:
+        if run.path.exists() and (not run.path.is_dir() or any(run.path.iterdir())):
+            if not force:
+                what = "a run" if run.exists() else "a non-empty path that is not a run"
+                raise RunError(f"{run.path} already holds {what}; continue it with --resume, or replace it with --force")
+            if run.path.is_dir():
+                shutil.rmtree(run.path)
+            else:
+                run.path.unlink()
+        run.path.mkdir(parents=True, exist_ok=True)
+        atomic_write(run.spec_path, prog.source)
+        run.write_manifest({"spec_file": str(prog.file), "spec_hash": source_hash, "task": cfg.task,
+                            "config": cfg.to_dict(), "versions": package_versions(), "status": "running",
+                            "steps_done": 0, "seconds": 0.0, "created": time.strftime("%Y-%m-%dT%H:%M:%S%z")})
+
+    session = _Session(prog, cfg, run, progress)
+    with session.stop:  # from here on, Ctrl-C and SIGTERM end in a checkpoint
+        if resume:
+            ckpt = _checkpoint_dir(run)
+            if ckpt is None:
+                raise RunError(f"{run.path}: no checkpoint to resume from (the run stopped before its first one); "
+                               "start over with --force")
+            model = session.restore(ckpt)
+            if cfg.steps <= int(model.num_timesteps) and run.read_manifest().get("status") == "finished":
+                return _finished(run, cfg, session, evaluate)
+        else:
+            model = build_model(cfg.algo, session.env, cfg.hyper, cfg.seed, tensorboard_log=str(run.tensorboard_dir))
+        run.update_manifest(status="running", config=cfg.to_dict())
+        status = session.learn(model)
+    run.update_manifest(status=status, steps_done=int(model.num_timesteps), seconds=round(session.seconds, 3),
+                        best=session.best)
+    result = TrainResult(run.path, cfg, int(model.num_timesteps), session.seconds, status, session.best,
+                         curves=session.curves)
+    if status == "finished" and evaluate:
+        from .evaluation import evaluate as run_evaluation
+
+        result.evaluation = run_evaluation(run.path, episodes=cfg.eval_episodes, oracle="cache")
+    return result
+
+
+def _finished(run: RunDir, cfg: TrainConfig, session: _Session, evaluate: bool) -> TrainResult:
+    """A resumed run that has nothing left to train: report it as it stands."""
+    manifest = run.read_manifest()
+    result = TrainResult(run.path, cfg, int(manifest.get("steps_done", 0)), float(manifest.get("seconds", 0.0)),
+                         "finished", manifest.get("best"), curves=session.curves)
+    if evaluate:
+        from .evaluation import evaluate as run_evaluation
+
+        result.evaluation = run_evaluation(run.path, episodes=cfg.eval_episodes, oracle="cache")
+    return result
+
+
+__all__ += ["ConfigError"]
