@@ -81,6 +81,8 @@ def _hyper_for(algo: str, values: Mapping[str, Any]) -> dict[str, Any]:
         out.pop("batch_size", None)
     if algo not in ("td3", "ddpg"):
         out.pop("action_noise", None)
+    if algo != "sac":
+        out.pop("target_entropy_per_action", None)
     if algo != "a2c":
         out.pop("rms_prop_eps", None)
     return out

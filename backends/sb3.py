@@ -131,13 +131,17 @@ class PolicyController:
 
 def build_model(algo: str, env, settings: dict[str, Any], seed: int, tensorboard_log: Optional[str] = None):
     """A fresh stable-baselines3 model; ``settings`` are the resolved hyperparameters (with
-    ``net_arch`` and, for TD3/DDPG, ``action_noise`` as a fraction of the action half-range)."""
+    ``net_arch``; for TD3/DDPG ``action_noise``, the std of Gaussian exploration noise as a fraction
+    of the action half-range; for SAC ``target_entropy_per_action``)."""
     from stable_baselines3.common.noise import NormalActionNoise
 
     cls = _algo_classes()[algo]
     kw = dict(settings)
     net_arch = kw.pop("net_arch", None)
     noise = kw.pop("action_noise", None)
+    per_action = kw.pop("target_entropy_per_action", None)
+    if per_action is not None and algo == "sac":  # SB3's "auto" is -1 per action dimension
+        kw["target_entropy"] = float(per_action) * env.action_space.shape[0]
     if noise:
         m = env.action_space.shape[0]
         half = (env.action_space.high - env.action_space.low) / 2.0

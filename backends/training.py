@@ -20,7 +20,7 @@ import threading
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Mapping, Optional, Protocol, Union
+from typing import Any, Mapping, Optional, Protocol, Sequence, Union
 
 import numpy as np
 
@@ -187,12 +187,14 @@ def _callbacks():
 class _Session:
     """One process's share of a run: from a fresh start or a checkpoint to the end or a stop."""
 
-    def __init__(self, prog: Program, cfg: TrainConfig, run: RunDir, progress: Optional[TrainProgress]):
+    def __init__(self, prog: Program, cfg: TrainConfig, run: RunDir, progress: Optional[TrainProgress],
+                 callbacks: Sequence = ()):
         import torch
 
         from asap_dsl.env import make_vec_env
 
         self.prog, self.cfg, self.run, self.progress = prog, cfg, run, progress
+        self.extra_callbacks = list(callbacks)
         if cfg.torch_threads > 0:
             torch.set_num_threads(cfg.torch_threads)
         self.task = prog.task(cfg.task).model
@@ -281,7 +283,7 @@ class _Session:
         self.last_checkpoint = self.started
         try:
             if remaining > 0 and self.stop.signal is None:
-                model.learn(total_timesteps=remaining, callback=_callbacks()(self),
+                model.learn(total_timesteps=remaining, callback=[_callbacks()(self), *self.extra_callbacks],
                             reset_num_timesteps=model.num_timesteps == 0, tb_log_name="train", progress_bar=False)
             stopped = self.stop.signal is not None
             if not stopped and (not self.curves or self.curves[-1]["steps"] != model.num_timesteps):
@@ -343,7 +345,7 @@ def train(spec: Union[str, Path, Program], task: Optional[str] = None, *, algo: 
           preset: Optional[str] = None, n_envs: Optional[int] = None, out: Union[str, Path, None] = None,
           runs_dir: Union[str, Path] = "runs", resume: bool = False, force: bool = False,
           settings: Optional[Mapping[str, Any]] = None, progress: Optional[TrainProgress] = None,
-          evaluate: bool = True, eval_episodes: Optional[int] = None) -> TrainResult:
+          evaluate: bool = True, eval_episodes: Optional[int] = None, callbacks: Sequence = ()) -> TrainResult:
     """Train ``task`` of a spec and evaluate the best model; returns a :class:`TrainResult`.
 
     Precedence of settings: these arguments, then the task's ``train { ... }`` block, then the
@@ -351,6 +353,8 @@ def train(spec: Union[str, Path, Program], task: Optional[str] = None, *, algo: 
     directory (default ``runs/<spec>-<task>-<algo>-<reward>-s<seed>``). An existing run is never
     replaced unless ``force``; ``resume`` continues its checkpoint (with ``steps``, a new total).
     Ctrl-C or SIGTERM stop the run after a checkpoint: the result's status is ``interrupted``.
+    ``callbacks``: extra stable-baselines3 callbacks (one returning False ends the run early, as
+    finished).
 
     Raises :class:`asap_dsl.SpecError` (the spec), :class:`ConfigError` (a setting),
     :class:`asap_dsl.runs.RunError` (the run directory) or ``KeyError`` (an unknown task).
@@ -391,7 +395,7 @@ def train(spec: Union[str, Path, Program], task: Optional[str] = None, *, algo: 
                             "config": cfg.to_dict(), "versions": package_versions(), "status": "running",
                             "steps_done": 0, "seconds": 0.0, "created": time.strftime("%Y-%m-%dT%H:%M:%S%z")})
 
-    session = _Session(prog, cfg, run, progress)
+    session = _Session(prog, cfg, run, progress, callbacks)
     with session.stop:  # from here on, Ctrl-C and SIGTERM end in a checkpoint
         if resume:
             ckpt = _checkpoint_dir(run)

@@ -248,6 +248,7 @@ def test_sigterm_checkpoints_and_resume_continues_the_step_count(tiny, tmp_path)
     _, err = proc.communicate(timeout=60)
     assert proc.returncode == 130, err
     assert "Traceback" not in err and "--resume" in err
+    assert "training: task go, sac, asap reward, default preset, seed 0" in err  # the log-style progress
     manifest = RunDir(out).read_manifest()
     assert manifest["status"] == "interrupted"
     stopped_at = manifest["steps_done"]

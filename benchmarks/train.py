@@ -1,0 +1,132 @@
+"""Training speed: wall time until each preset first comes within a margin of the oracle's ceiling.
+
+For DC motor ``reach_avoid`` (by default), each preset (``default``, then ``paper``) trains in this
+process, one after the other on the same machine, and every ``--every`` seconds of training its
+current policy is evaluated on the 1000 seeded evaluation states (the clock stops while it is
+evaluated). The first evaluation that comes within ``--margin`` points of the oracle's ceiling at
+every tolerance gives the preset's time; the script prints both times and their ratio
+(paper / default; the bar is at least 3x). This measures, it selects nothing: no model is kept.
+
+    .venv/bin/python benchmarks/train.py [--task reach_avoid] [--margin 10] [--seeds 0]
+        [--presets default,paper] [--every 5] [--limit 600]
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+import asap_dsl
+from asap_dsl.rollout import Evaluator
+from asap_dsl.sampling import EVAL_SEED, evaluation_states
+
+SPECS = Path(__file__).resolve().parents[1] / "specs"
+
+
+def _time_to_ceiling(spec: Path, task: str, preset: str, seed: int, ceiling: dict, margin: float, every: float,
+                     limit: float, steps: int, log) -> dict:
+    from stable_baselines3.common.callbacks import BaseCallback
+
+    from asap_dsl.backends.sb3 import PolicyController, Scaling
+    from asap_dsl.backends.config import resolve_config
+
+    prog = asap_dsl.load(spec)
+    cfg = resolve_config(prog, task, preset=preset, seed=seed, steps=steps)
+    tm = prog.task(task).model
+    states = evaluation_states(prog.system, 1000, seed=EVAL_SEED, avoid=tm.avoid)
+    judge = Evaluator(prog, task, states, reward=cfg.reward)
+    scaling = Scaling.for_system(prog.system, cfg.observation_scaling, cfg.action_scaling)
+    out = {"preset": preset, "seed": seed, "seconds": None, "steps": None, "rates": None, "history": []}
+
+    class Clock(BaseCallback):
+        def __init__(self):
+            super().__init__()
+            self.paused = 0.0
+            self.start = None
+            self.next = every
+
+        def _on_training_start(self) -> None:
+            self.start = time.perf_counter()
+
+        def _on_step(self) -> bool:
+            now = time.perf_counter()
+            if self.start is None:
+                self.start = now
+            clock = now - self.start - self.paused
+            if clock < self.next:
+                return True
+            self.next = clock + every
+            res = judge.run(PolicyController(self.model, scaling))
+            rates = {T: res.rate(T) for T in ceiling}
+            self.paused += time.perf_counter() - now
+            out["history"].append((round(clock, 1), self.num_timesteps, rates))
+            log(f"    {preset:<8} s{seed}  {clock:7.1f} s  {self.num_timesteps:>8,} steps  "
+                + "  ".join(f"{T}: {100 * r:5.1f}%" for T, r in sorted(rates.items(), reverse=True)))
+            if all(rates[T] >= ceiling[T] - margin / 100 for T in ceiling):
+                out.update(seconds=round(clock, 1), steps=self.num_timesteps, rates=rates)
+                return False
+            return clock < limit
+
+    with tempfile.TemporaryDirectory() as tmp:
+        asap_dsl.train(prog, task, preset=preset, seed=seed, steps=steps, out=Path(tmp) / "run", evaluate=False,
+                       callbacks=[Clock()])
+    return out
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--spec", default=str(SPECS / "dc_motor.asap"))
+    ap.add_argument("--task", default="reach_avoid")
+    ap.add_argument("--margin", type=float, default=10.0, help="points below the ceiling that count (default 10)")
+    ap.add_argument("--presets", default="default,paper")
+    ap.add_argument("--seeds", default="0", help="comma-separated training seeds (each preset, each seed)")
+    ap.add_argument("--every", type=float, default=5.0, help="seconds of training between evaluations")
+    ap.add_argument("--limit", type=float, default=600.0, help="give up after this much training (seconds)")
+    ap.add_argument("--steps", type=int, default=2_000_000, help="step budget (the limit usually ends a run first)")
+    args = ap.parse_args()
+    from asap_dsl.backends.oracle_cache import oracle_for
+
+    prog = asap_dsl.load(args.spec)
+    oracle = oracle_for(prog, args.task, EVAL_SEED, 1000, workers=2)
+    if oracle is None:
+        print("no oracle for this spec: nothing to measure against", file=sys.stderr)
+        return 1
+    tols = sorted(prog.task(args.task).model.tolerances, reverse=True)
+    ceiling = {T: oracle.ceiling(T)["rate"] for T in tols}
+    print(f"training benchmark: {Path(args.spec).name} {args.task}, {os.cpu_count()} CPUs; ceiling "
+          + ", ".join(f"{T}: {100 * c:.1f}%" for T, c in ceiling.items())
+          + f"; target: within {args.margin:g} points at every tolerance; evaluation every {args.every:g} s")
+    results = {}
+    for preset in args.presets.split(","):
+        for seed in (int(s) for s in args.seeds.split(",")):
+            r = _time_to_ceiling(Path(args.spec), args.task, preset, seed, ceiling, args.margin, args.every,
+                                 args.limit, args.steps, lambda m: print(m, flush=True))
+            results.setdefault(preset, []).append(r)
+            got = "not reached" if r["seconds"] is None else f"{r['seconds']:.1f} s ({r['steps']:,} steps)"
+            print(f"  {preset:<8} seed {seed}: {got}", flush=True)
+    print()
+    times = {}
+    for preset, rs in results.items():
+        t = [r["seconds"] for r in rs]
+        if any(x is None for x in t):
+            print(f"{preset:<8} did not get within {args.margin:g} points in {args.limit:g} s on every seed")
+            times[preset] = None
+        else:
+            times[preset] = float(np.median(t))
+            print(f"{preset:<8} median time to within {args.margin:g} points: {times[preset]:.1f} s over seeds "
+                  f"{', '.join(str(r['seed']) for r in rs)}")
+    if times.get("default") and times.get("paper"):
+        ratio = times["paper"] / times["default"]
+        print(f"ratio paper / default: {ratio:.2f}x (bar: at least 3x) — {'PASS' if ratio >= 3 else 'FAIL'}")
+        return 0 if ratio >= 3 else 1
+    return 1
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
