@@ -255,6 +255,13 @@ def build_parser() -> argparse.ArgumentParser:
     train_cli.add_eval_arguments(evaluate)
     evaluate.set_defaults(func=train_cli.eval_command)
 
+    from .backends import compare_cli
+
+    compare = sub.add_parser("compare", help="train what is missing, evaluate every run on the same states and "
+                             "write a report (Markdown and HTML) beside the oracle's ceiling")
+    compare_cli.add_compare_arguments(compare)
+    compare.set_defaults(func=compare_cli.compare_command)
+
     oracle = sub.add_parser("oracle", help="minimum steps per initial state (CasADi) and the best success rate "
                             "any policy could reach")
     oracle_cli.add_oracle_arguments(oracle)

@@ -50,6 +50,7 @@ class TrainConfig:
     validate_every: int
     eval_episodes: int
     hyper: dict[str, Any] = field(default_factory=dict)
+    time_limit: Optional[float] = None  # seconds of training; the run ends (finished) when they are spent
 
     def to_dict(self) -> dict:
         return asdict(self)
@@ -57,16 +58,17 @@ class TrainConfig:
     @classmethod
     def from_dict(cls, data: Mapping[str, Any]) -> "TrainConfig":
         names = {f.name for f in fields(cls)}
-        missing = names - set(data)
+        missing = names - set(data) - {"time_limit"}
         if missing:
             raise ConfigError(f"the stored configuration lacks {', '.join(sorted(missing))}")
-        return cls(**{k: data[k] for k in names})
+        return cls(**{k: data[k] for k in names if k in data})
 
     @property
     def key(self) -> dict:
         """What makes two runs the same experiment (a sweep reuses a run when these agree)."""
         d = self.to_dict()
         d.pop("validate_every", None)
+        d.pop("time_limit", None)
         return d
 
 
@@ -91,7 +93,7 @@ def _hyper_for(algo: str, values: Mapping[str, Any]) -> dict[str, Any]:
 def resolve_config(prog, task: Optional[str] = None, *, algo: Optional[str] = None, reward: Optional[str] = None,
                    steps: Optional[int] = None, seed: Optional[int] = None, preset: Optional[str] = None,
                    n_envs: Optional[int] = None, settings: Optional[Mapping[str, Any]] = None,
-                   eval_episodes: Optional[int] = None) -> TrainConfig:
+                   eval_episodes: Optional[int] = None, time_limit: Optional[float] = None) -> TrainConfig:
     """Resolve the configuration of training ``task`` of ``prog``.
 
     ``settings`` are hyperparameters by their ``train { ... }`` names (they override the block
@@ -129,6 +131,8 @@ def resolve_config(prog, task: Optional[str] = None, *, algo: Optional[str] = No
             raise ConfigError(f"{name} must be at least {least}; got {value}")
     if run_seed < 0:
         raise ConfigError(f"the seed must be 0 or more; got {run_seed}")
+    if time_limit is not None and not (time_limit > 0 and time_limit < float("inf")):
+        raise ConfigError(f"the time limit must be a positive number of seconds; got {time_limit}")
     if algo in OFF_POLICY:
         # Memory for what the run can fill, no more (the paper's buffer never drops a sample).
         hyper["buffer_size"] = int(min(int(hyper.get("buffer_size", 1_000_000)), total + envs))
@@ -146,4 +150,4 @@ def resolve_config(prog, task: Optional[str] = None, *, algo: Optional[str] = No
         # the time-out must be bootstrapped (stable-baselines3's TimeLimit.truncated handling).
         time_limit_terminal="time" in t.observe,
         validation_episodes=p.validation_episodes, validation_seed=VALIDATION_SEED, validate_every=every,
-        eval_episodes=episodes, hyper=hyper)
+        eval_episodes=episodes, hyper=hyper, time_limit=None if time_limit is None else float(time_limit))

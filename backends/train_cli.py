@@ -46,6 +46,16 @@ def _seed(text: str) -> int:
     return value
 
 
+def _minutes(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected minutes, got '{text}'") from None
+    if not 0 < value < 1e6:
+        raise argparse.ArgumentTypeError(f"expected a positive number of minutes, got '{text}'")
+    return value
+
+
 def _tolerances(text: str) -> list[int]:
     out = []
     for part in text.replace(" ", "").split(","):
@@ -72,6 +82,8 @@ def add_train_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--reward", help="asap | rho | rho(window = D) | distance(...) (default: the task's reward)")
     p.add_argument("--steps", type=_steps, help="environment steps in all (default: train block, else the preset's)")
     p.add_argument("--seed", type=_seed, help="the run's seed (default: train block, else 0)")
+    p.add_argument("--time-limit", type=_minutes, metavar="MINUTES",
+                   help="end the run (as finished) after this much training time, whatever the steps")
     p.add_argument("--preset", choices=tuple(PRESETS), help="default (measured fastest here) or paper (as published)")
     p.add_argument("--envs", type=_positive_int, dest="n_envs", help="environments stepped together (default: the preset's)")
     p.add_argument("--out", help="the run directory (default runs/<spec>-<task>-<algo>-<reward>-s<seed>)")
@@ -186,7 +198,8 @@ def train_command(args: argparse.Namespace, out: Optional[TextIO] = None, err: O
     try:
         result = train(prog, args.task, algo=args.algo, reward=args.reward, steps=args.steps, seed=args.seed,
                        preset=args.preset, n_envs=args.n_envs, out=args.out, resume=args.resume, force=args.force,
-                       progress=progress, evaluate=not args.no_eval)
+                       progress=progress, evaluate=not args.no_eval,
+                       time_limit=None if args.time_limit is None else 60.0 * args.time_limit)
     except KeyError as e:
         return _fail(err, e.args[0], 2)
     except ConfigError as e:

@@ -177,6 +177,9 @@ def _callbacks():
                     s.next_validation += s.cfg.validate_every
             if s.stop.signal is not None:
                 return False
+            if s.cfg.time_limit is not None and s.seconds >= s.cfg.time_limit:
+                s.time_up = True
+                return False
             if time.perf_counter() - s.last_checkpoint >= CHECKPOINT_SECONDS:
                 s.checkpoint(self.model)
             return True
@@ -201,7 +204,7 @@ class _Session:
         self.tolerances = sorted(self.task.tolerances)
         self.scaling = Scaling.for_system(prog.system, cfg.observation_scaling, cfg.action_scaling)
         self.raw_env = make_vec_env(prog, cfg.task, num_envs=cfg.n_envs, seed=cfg.seed, reward=cfg.reward)
-        self.env = _TimeLimitEnv(ScaledVecEnv(self.raw_env, self.scaling), cfg.time_limit_terminal)
+        self.env = _LearnerEnv(ScaledVecEnv(self.raw_env, self.scaling), cfg.time_limit_terminal)
         val_states = evaluation_states(prog.system, cfg.validation_episodes, seed=cfg.validation_seed,
                                        avoid=self.task.avoid)
         self.validator = Evaluator(prog, cfg.task, val_states, reward=cfg.reward)
@@ -210,6 +213,7 @@ class _Session:
         self.next_validation = cfg.validate_every
         self.seconds_before = 0.0
         self.stop = _StopFlag()
+        self.time_up = False
         self.last_checkpoint = time.perf_counter()
         self.started = time.perf_counter()
 
@@ -295,13 +299,13 @@ class _Session:
         return "interrupted" if stopped else "finished"
 
 
-def _time_limit_base():
+def _wrapper_base():
     from stable_baselines3.common.vec_env import VecEnvWrapper
 
     return VecEnvWrapper
 
 
-class _TimeLimitEnv(_time_limit_base()):
+class _LearnerEnv(_wrapper_base()):
     """With the time left in the observation, the deadline ends a finite-horizon problem: the
     time-out is terminal (no bootstrapping past it). Otherwise a pass-through."""
 
@@ -345,7 +349,8 @@ def train(spec: Union[str, Path, Program], task: Optional[str] = None, *, algo: 
           preset: Optional[str] = None, n_envs: Optional[int] = None, out: Union[str, Path, None] = None,
           runs_dir: Union[str, Path] = "runs", resume: bool = False, force: bool = False,
           settings: Optional[Mapping[str, Any]] = None, progress: Optional[TrainProgress] = None,
-          evaluate: bool = True, eval_episodes: Optional[int] = None, callbacks: Sequence = ()) -> TrainResult:
+          evaluate: bool = True, eval_episodes: Optional[int] = None, callbacks: Sequence = (),
+          time_limit: Optional[float] = None) -> TrainResult:
     """Train ``task`` of a spec and evaluate the best model; returns a :class:`TrainResult`.
 
     Precedence of settings: these arguments, then the task's ``train { ... }`` block, then the
@@ -354,14 +359,14 @@ def train(spec: Union[str, Path, Program], task: Optional[str] = None, *, algo: 
     replaced unless ``force``; ``resume`` continues its checkpoint (with ``steps``, a new total).
     Ctrl-C or SIGTERM stop the run after a checkpoint: the result's status is ``interrupted``.
     ``callbacks``: extra stable-baselines3 callbacks (one returning False ends the run early, as
-    finished).
+    finished). ``time_limit``: seconds of training after which the run ends, as finished.
 
     Raises :class:`asap_dsl.SpecError` (the spec), :class:`ConfigError` (a setting),
     :class:`asap_dsl.runs.RunError` (the run directory) or ``KeyError`` (an unknown task).
     """
     prog = _program(spec)
     cfg = resolve_config(prog, task, algo=algo, reward=reward, steps=steps, seed=seed, preset=preset,
-                         n_envs=n_envs, settings=settings, eval_episodes=eval_episodes)
+                         n_envs=n_envs, settings=settings, eval_episodes=eval_episodes, time_limit=time_limit)
     run = RunDir(out if out is not None else Path(runs_dir) / default_run_name(prog.file, cfg.task, cfg.algo,
                                                                              cfg.reward, cfg.seed))
     source_hash = spec_hash(prog.source)
@@ -379,6 +384,8 @@ def train(spec: Union[str, Path, Program], task: Optional[str] = None, *, algo: 
                            + "; ".join(conflicts))
         if steps is not None:
             stored.steps = int(steps)
+        if time_limit is not None:
+            stored.time_limit = float(time_limit)
         cfg = stored
     else:
         if run.path.exists() and (not run.path.is_dir() or any(run.path.iterdir())):

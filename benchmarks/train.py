@@ -14,6 +14,7 @@ every tolerance gives the preset's time; the script prints both times and their 
 from __future__ import annotations
 
 import argparse
+import json
 import os
 import sys
 import tempfile
@@ -30,14 +31,14 @@ SPECS = Path(__file__).resolve().parents[1] / "specs"
 
 
 def _time_to_ceiling(spec: Path, task: str, preset: str, seed: int, ceiling: dict, margin: float, every: float,
-                     limit: float, steps: int, log) -> dict:
+                     limit: float, steps: int, log, n_envs=None, settings=None) -> dict:
     from stable_baselines3.common.callbacks import BaseCallback
 
     from asap_dsl.backends.sb3 import PolicyController, Scaling
     from asap_dsl.backends.config import resolve_config
 
     prog = asap_dsl.load(spec)
-    cfg = resolve_config(prog, task, preset=preset, seed=seed, steps=steps)
+    cfg = resolve_config(prog, task, preset=preset, seed=seed, steps=steps, n_envs=n_envs, settings=settings)
     tm = prog.task(task).model
     states = evaluation_states(prog.system, 1000, seed=EVAL_SEED, avoid=tm.avoid)
     judge = Evaluator(prog, task, states, reward=cfg.reward)
@@ -75,7 +76,7 @@ def _time_to_ceiling(spec: Path, task: str, preset: str, seed: int, ceiling: dic
 
     with tempfile.TemporaryDirectory() as tmp:
         asap_dsl.train(prog, task, preset=preset, seed=seed, steps=steps, out=Path(tmp) / "run", evaluate=False,
-                       callbacks=[Clock()])
+                       callbacks=[Clock()], n_envs=n_envs, settings=settings)
     return out
 
 
@@ -89,7 +90,14 @@ def main() -> int:
     ap.add_argument("--every", type=float, default=5.0, help="seconds of training between evaluations")
     ap.add_argument("--limit", type=float, default=600.0, help="give up after this much training (seconds)")
     ap.add_argument("--steps", type=int, default=2_000_000, help="step budget (the limit usually ends a run first)")
+    ap.add_argument("--envs", type=int, default=None, help="environments of the default preset (to try others)")
+    ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                    help="a hyperparameter of the default preset, e.g. batch_size=128 (to try others)")
     args = ap.parse_args()
+    overrides = {}
+    for item in args.set:
+        key, _, value = item.partition("=")
+        overrides[key.strip()] = json.loads(value)
     from asap_dsl.backends.oracle_cache import oracle_for
 
     prog = asap_dsl.load(args.spec)
@@ -105,8 +113,10 @@ def main() -> int:
     results = {}
     for preset in args.presets.split(","):
         for seed in (int(s) for s in args.seeds.split(",")):
+            tweak = preset == "default"
             r = _time_to_ceiling(Path(args.spec), args.task, preset, seed, ceiling, args.margin, args.every,
-                                 args.limit, args.steps, lambda m: print(m, flush=True))
+                                 args.limit, args.steps, lambda m: print(m, flush=True),
+                                 n_envs=args.envs if tweak else None, settings=overrides if tweak else None)
             results.setdefault(preset, []).append(r)
             got = "not reached" if r["seconds"] is None else f"{r['seconds']:.1f} s ({r['steps']:,} steps)"
             print(f"  {preset:<8} seed {seed}: {got}", flush=True)

@@ -52,6 +52,33 @@ task t {
 """
 
 
+# A one-dimensional plant for training, evaluation and sweeps: fast to simulate and to learn on.
+RAIL = """\
+system Rail {
+  state x in [-2, 2] init [-1.5, 1.5]
+  action u in [-1, 1]
+  dt = 0.1
+  ode { x' = 2 * u }
+}
+region goal = ball([1], 0.2)
+region pit = box(x in [-2, -1.8])
+task go {
+  asap in goal
+  avoid in pit
+  deadline 20
+  tolerances 20, 10, 5
+}
+"""
+
+
+@pytest.fixture()
+def tiny(tmp_path):
+    """The rail spec written to a file (runs record and check the file they were trained on)."""
+    p = tmp_path / "rail.asap"
+    p.write_text(RAIL)
+    return p
+
+
 def language_blocks() -> list[str]:
     """The fenced code blocks of LANGUAGE.md, in order."""
     text = LANGUAGE_MD.read_text(encoding="utf-8")

@@ -9,22 +9,10 @@ import asap_dsl
 from asap_dsl.rollout import ConstantController, Evaluator, rollout
 from asap_dsl.sampling import evaluation_states
 from asap_dsl.stats import asap_gap, mean_spread, rate, steps_summary, wilson_interval
+from conftest import RAIL
 
-SPEC = """\
-system Rail {
-  state x in [-2, 2] init [-1.5, 1.5]
-  action u in [-1, 1]
-  dt = 0.1
-  ode { x' = 2 * u }
-}
-region goal = ball([1], 0.2)
-region pit = box(x in [-2, -1.6])
-task go {
-  asap in goal
-  avoid in pit
-  deadline 20
-  tolerances 20, 10, 5
-}
+# The rail with a wider pit and a second task without it.
+SPEC = RAIL.replace("[-2, -1.8]", "[-2, -1.6]") + """\
 task right {
   asap in goal
   deadline 20

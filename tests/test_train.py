@@ -17,33 +17,12 @@ import pytest
 import asap_dsl
 from asap_dsl import cli
 from asap_dsl.runs import RunDir, RunError
+from conftest import RAIL
 
 # A one-dimensional plant: fast to simulate and to learn something on.
-TINY = """\
-system Rail {
-  state x in [-2, 2] init [-1.5, 1.5]
-  action u in [-1, 1]
-  dt = 0.1
-  ode { x' = 2 * u }
-}
-region goal = ball([1], 0.2)
-region pit = box(x in [-2, -1.8])
-task go {
-  asap in goal
-  avoid in pit
-  deadline 20
-  tolerances 20, 10, 5
-}
-"""
+TINY = RAIL
 
 FAST = {"net_arch": [16, 16], "learning_starts": 64, "batch_size": 32}
-
-
-@pytest.fixture()
-def tiny(tmp_path):
-    p = tmp_path / "rail.asap"
-    p.write_text(TINY)
-    return p
 
 
 @pytest.fixture(autouse=True)
@@ -294,3 +273,12 @@ def test_settings_precedence_flag_over_block_over_preset(tiny):
     assert paper.hyper["learning_rate"] == 0.002  # the block beats the preset
     assert paper.n_envs == 1 and paper.hyper["batch_size"] == get_preset("paper").settings("ddpg")["batch_size"]
     assert paper.hyper["buffer_size"] == 5000 + 1  # never more memory than the run can fill
+
+
+def test_time_limit_ends_the_run_as_finished(tiny, tmp_path):
+    res = asap_dsl.train(tiny, steps=10_000_000, n_envs=2, out=tmp_path / "r", settings=FAST, time_limit=3.0,
+                         eval_episodes=30)
+    assert res.status == "finished" and 0 < res.steps < 10_000_000
+    assert 3.0 <= res.seconds < 10.0
+    assert RunDir(tmp_path / "r").read_manifest()["config"]["time_limit"] == 3.0
+    assert res.evaluation is not None

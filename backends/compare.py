@@ -1,0 +1,191 @@
+"""``asap_dsl.backends.compare.compare`` / ``asapc compare``: a sweep of training runs, every run and
+every non-RL method judged on the same seeded states (paired), beside the oracle's ceiling, and
+the report that shows it (:mod:`.report`, :mod:`.plots`).
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Callable, Optional, Sequence
+
+import numpy as np
+
+from asap_dsl.rollout import Evaluator
+from asap_dsl.runs import atomic_write_json, json_safe, package_versions, spec_hash
+from asap_dsl.sampling import EVAL_SEED, evaluation_states
+
+from . import plots
+from .report import REWARD_NAMES, Column, Method, ReportData, write
+from .sweep import Job, execute, load_result, plan
+
+__all__ = ["CompareResult", "compare"]
+
+
+@dataclass
+class CompareResult:
+    out_dir: Path
+    markdown: Path
+    html: Path
+    data: ReportData
+    results: list[dict]
+    seconds: float
+
+
+def _baseline(prog, task: str, kind: str, states: np.ndarray, oracle, cache: Path) -> Optional[dict]:
+    """The greedy controller's or the oracle replay's evaluation on the seeded states (cached)."""
+    from .controllers import GreedyController, OracleController
+    from .evaluation import summarise
+
+    path = cache / f"{spec_hash(prog.source)[:16]}-{task}-{kind}-n{len(states)}.json"
+    if path.is_file():
+        try:
+            return json.loads(path.read_text(encoding="utf-8"))
+        except ValueError:
+            pass
+    if kind == "oracle":
+        if oracle is None:
+            return None
+        ctrl = OracleController.from_cache(oracle, prog.system.n_action)
+    else:
+        try:
+            ctrl = GreedyController(prog, task, budget=25 if prog.system.kind == "simulator" else 125)
+        except ValueError:
+            return None
+    start = time.perf_counter()
+    res = Evaluator(prog, task, states).run(ctrl)
+    label = "greedy one-step look-ahead" if kind == "greedy" else "oracle action sequences, replayed"
+    ev = summarise(res, method=label, prog=prog, task=task, seed=EVAL_SEED,
+                   tolerances=list(prog.task(task).model.tolerances), oracle=oracle,
+                   seconds=time.perf_counter() - start).to_dict()
+    atomic_write_json(path, ev)
+    return ev
+
+
+def _run_evaluation(result: dict, episodes: int, oracle) -> dict:
+    """The run's evaluation on the sweep's states: its final one when it used them, else a new one;
+    the ASAP gap against the oracle recomputed (the run may have finished before the oracle)."""
+    from asap_dsl.stats import asap_gap
+
+    ev = result["evaluation"]
+    if not (ev.get("episodes") == episodes and ev.get("seed") == EVAL_SEED and "per_state" in ev):
+        from .evaluation import evaluate
+
+        ev = json.loads(json.dumps(json_safe(evaluate(result["run_dir"], episodes=episodes, oracle="cache",
+                                                      write=False).to_dict())))
+    if oracle is not None:
+        t = np.array([np.inf if x is None else float(x) for x in ev["per_state"]["t_reach"]])
+        ev["gap"] = asap_gap(t, oracle.steps)
+    return ev
+
+
+def _examples(prog, task: str, result: dict, oracle, n: int = 4) -> Optional[dict]:
+    """Robustness of ``asap`` along ``n`` example episodes: the run's policy and the oracle's."""
+    from .controllers import OracleController
+    from .evaluation import load_run
+
+    loaded = load_run(result["run_dir"])
+    tm = prog.task(task).model
+    states = evaluation_states(prog.system, n, seed=EVAL_SEED, avoid=tm.avoid)
+    asap = prog.task(task).asap
+
+    def rho(res):
+        out = []
+        for i in range(len(states)):
+            tr = res.trajectories[i, : res.end_step[i] + 1]
+            out.append(asap.robustness(tr).tolist())
+        return out
+
+    ev = Evaluator(prog, task, states)
+    policy = rho(ev.run(loaded.controller(), record=True))
+    orc = None
+    if oracle is not None:
+        orc = rho(ev.run(OracleController.from_cache(oracle, prog.system.n_action), record=True))
+    j = result["job"]
+    return {"policy": policy, "oracle": orc, "label": f"{REWARD_NAMES.get(j['reward'], j['reward'])} ({j['algo']})"}
+
+
+def compare(specs: Sequence[str], *, tasks: Optional[Sequence[str]] = None,
+            rewards: Sequence[str] = ("asap", "rho", "distance"), algos: Sequence[str] = ("sac",), seeds: int = 3,
+            steps: Optional[int] = None, preset: str = "default", workers: int = 1, ray: Optional[str] = None,
+            out: str = "reports/compare", episodes: int = 1000,
+            on_event: Optional[Callable[[str, Job, Optional[dict]], None]] = None,
+            oracle_workers: Optional[int] = None) -> CompareResult:
+    """Train what is missing, evaluate everything on the same states, write the report.
+
+    Raises :class:`~asap_dsl.backends.sweep.SweepInterrupted` when stopped (the finished runs stay;
+    the same call continues).
+    """
+    import asap_dsl
+
+    from .oracle_cache import oracle_for
+
+    start = time.perf_counter()
+    out_dir = Path(out)
+    jobs = plan(specs, tasks, list(rewards), list(algos), seeds, preset, steps)
+    results = execute(jobs, str(out_dir / "runs"), workers=workers, ray_address=ray, on_event=on_event)
+    notes = [f"{r['job']['spec']} {r['job']['task']} {r['job']['algo']} {r['job']['reward']} seed {r['job']['seed']}: "
+             f"failed ({r.get('error')})" for r in results if r["status"] == "failed"]
+    loaded = [load_result(r) for r in results if r["status"] == "finished"]
+
+    columns: list[Column] = []
+    table1 = {r: Method(f"{r}/{algos[0]}", f"{REWARD_NAMES.get(r, r)} ({algos[0]})", "rl") for r in rewards}
+    table2 = {a: Method(f"{rewards[0]}/{a}", f"{REWARD_NAMES.get(rewards[0], rewards[0])} ({a})", "rl") for a in algos}
+    greedy = Method("greedy", "greedy look-ahead", "greedy")
+    replay = Method("oracle-replay", "oracle, replayed", "oracle")
+    examples, curves = {}, {}
+    seen = set()
+    for job in jobs:
+        key = (job.spec, job.task)
+        if key in seen:
+            continue
+        seen.add(key)
+        prog = asap_dsl.load(job.spec)
+        tm = prog.task(job.task).model
+        oracle = oracle_for(prog, job.task, EVAL_SEED, episodes, workers=oracle_workers)
+        col = Column(job.spec, job.task, list(tm.tolerances), tm.deadline)
+        if oracle is not None:
+            col.ceiling = {T: oracle.ceiling(T) for T in tm.tolerances}
+            col.bound = oracle.bound
+            col.oracle_steps = [None if not np.isfinite(x) else int(x) for x in oracle.steps]
+        columns.append(col)
+        states = evaluation_states(prog.system, episodes, seed=EVAL_SEED, avoid=tm.avoid)
+        for method, kind in ((greedy, "greedy"), (replay, "oracle")):
+            ev = _baseline(prog, job.task, kind, states, oracle, out_dir / "methods")
+            if ev is not None:
+                method.evaluations.setdefault(col.name, []).append(ev)
+        mine = [r for r in loaded if (r["job"]["spec"], r["job"]["task"]) == key]
+        for r in sorted(mine, key=lambda r: r["job"]["seed"]):
+            j = r["job"]
+            ev = _run_evaluation(r, episodes, oracle)
+            if j["algo"] == algos[0] and j["reward"] in table1:
+                table1[j["reward"]].evaluations.setdefault(col.name, []).append(ev)
+            if j["reward"] == rewards[0] and j["algo"] in table2:
+                table2[j["algo"]].evaluations.setdefault(col.name, []).append(ev)
+            curves.setdefault(col.name, []).append((f"{REWARD_NAMES.get(j['reward'], j['reward'])} {j['algo']} "
+                                                    f"s{j['seed']}", r["curves"]))
+        first = [r for r in mine if r["job"]["algo"] == algos[0] and r["job"]["reward"] == rewards[0]]
+        if first:
+            examples[col.name] = _examples(prog, job.task, sorted(first, key=lambda r: r["job"]["seed"])[0], oracle)
+
+    t1 = list(table1.values()) + [greedy]
+    t2 = list(table2.values()) if len(algos) > 1 else []
+    runs = [{"label": f"{Path(r['job']['spec']).stem} {r['job']['task']} {r['job']['algo']} {r['job']['reward']}",
+             "spec_hash": r["manifest"]["spec_hash"], "seed": r["job"]["seed"], "preset": r["job"]["preset"],
+             "steps": r["steps"], "seconds": r["seconds"], "status": "trained now" if r["trained_now"] else "reused"}
+            for r in loaded]
+    data = ReportData(title="ASAP-Phi comparison: " + ", ".join(sorted({Path(s).stem for s in specs})),
+                      columns=columns, table1=t1, table2=t2, runs=runs, notes=notes, versions=package_versions())
+    figures = {
+        "success_vs_tolerance": plots.success_vs_tolerance(columns, t1 + t2 + [replay]),
+        "steps_vs_oracle": plots.steps_vs_oracle(columns, t1[0]),
+        "trajectories": plots.trajectories(columns, examples),
+        "training_curves": plots.training_curves(columns, curves),
+    }
+    data.plots = {k: v for k, v in figures.items() if v is not None}
+    data.seconds = time.perf_counter() - start
+    paths = write(out_dir, data)
+    atomic_write_json(out_dir / "sweep.json", {"jobs": [r for r in results], "seconds": data.seconds})
+    return CompareResult(out_dir, paths["markdown"], paths["html"], data, results, data.seconds)

@@ -1,0 +1,156 @@
+"""``asapc compare FILE...``: flags, the sweep's live progress, and the summary printed at the end.
+
+Exit status: 0 the report was written, 1 a problem with a spec, 2 a bad flag, 130 interrupted (the
+finished runs are kept and running ones checkpointed: the same command continues).
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+import time
+from typing import Optional, TextIO
+
+__all__ = ["add_compare_arguments", "compare_command"]
+
+
+def _names(text: str) -> list[str]:
+    items = [x.strip() for x in text.split(",") if x.strip()]
+    if not items:
+        raise argparse.ArgumentTypeError("give at least one name, comma-separated")
+    return items
+
+
+def add_compare_arguments(p: argparse.ArgumentParser) -> None:
+    from .train_cli import _positive_int, _steps
+
+    p.add_argument("files", nargs="+", metavar="FILE", help="the .asap specs")
+    p.add_argument("--tasks", type=_names, help="comma-separated tasks (default: every task of each file)")
+    p.add_argument("--rewards", type=_names, default=["asap", "rho", "distance"],
+                   help="comma-separated rewards, Table 1 (default asap,rho,distance)")
+    p.add_argument("--algos", type=_names, default=["sac"], help="comma-separated algorithms, Table 2 (default sac)")
+    p.add_argument("--seeds", type=_positive_int, default=3, help="seeds per configuration (default 3)")
+    p.add_argument("--steps", type=_steps, help="environment steps per run (default: the preset's)")
+    p.add_argument("--preset", default="default", help="default or paper")
+    p.add_argument("--episodes", type=_positive_int, default=1000, help="evaluation states (default 1000)")
+    p.add_argument("--workers", type=_positive_int, help="training processes (default: the cores available)")
+    p.add_argument("--force-workers", action="store_true", help="allow more workers than cores")
+    p.add_argument("--ray", metavar="ADDRESS", help="run the trainings on a Ray cluster (an address, or 'auto')")
+    p.add_argument("--out", default="reports/compare", help="the report and its runs (default reports/compare)")
+    p.add_argument("--quiet", action="store_true", help="no progress display")
+
+
+def _cores() -> int:
+    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+
+
+class SweepProgress:
+    """Runs done, running and an ETA from the mean time of the runs trained so far."""
+
+    def __init__(self, total: int, stream: TextIO = sys.stderr):
+        self.total, self.stream = total, stream
+        self.done = self.running = self.reused = 0
+        self.times: list[float] = []
+        self.started: dict = {}
+        self.t0 = time.perf_counter()
+        self.live = stream.isatty()
+        self.bar = None
+        if self.live:
+            from rich.console import Console
+            from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+
+            self.bar = Progress(TextColumn("sweep"), BarColumn(), MofNCompleteColumn(), TextColumn("{task.fields[info]}"),
+                                TimeElapsedColumn(), console=Console(file=stream), refresh_per_second=2)
+            self.bar.start()
+            self.task = self.bar.add_task("runs", total=total, info="")
+
+    def _info(self) -> str:
+        left = self.total - self.done
+        eta = ""
+        if self.times:
+            per = sum(self.times) / len(self.times)
+            eta = f", ETA {per * left / max(1, self.running or 1) / 60:.1f} min"
+        return f"{self.running} running, {self.reused} reused{eta}"
+
+    def __call__(self, kind: str, job, result: Optional[dict]) -> None:
+        if kind == "start":
+            self.running += 1
+            self.started[job] = time.perf_counter()
+        else:
+            self.running -= 1
+            self.done += 1
+            if result and result.get("trained_now"):
+                self.times.append(time.perf_counter() - self.started.get(job, self.t0))
+            elif result and result.get("status") == "finished":
+                self.reused += 1
+        if self.bar is not None:
+            self.bar.update(self.task, completed=self.done, info=self._info())
+        elif kind == "done":
+            status = (result or {}).get("status", "?")
+            how = "reused" if status == "finished" and not (result or {}).get("trained_now") else status
+            print(f"  [{self.done}/{self.total}] {job.label()}: {how} ({self._info()})", file=self.stream, flush=True)
+
+    def close(self) -> None:
+        if self.bar is not None:
+            self.bar.stop()
+
+
+def compare_command(args: argparse.Namespace, out: Optional[TextIO] = None, err: Optional[TextIO] = None) -> int:
+    import asap_dsl
+
+    from .compare import compare
+    from .presets import ALGORITHMS, PRESETS
+    from .report import markdown
+    from .sweep import SweepInterrupted, plan
+
+    out, err = out or sys.stdout, err or sys.stderr
+
+    def fail(msg: str, code: int) -> int:
+        err.write(f"asapc: error: {msg}\n")
+        return code
+
+    bad = [a for a in args.algos if a not in ALGORITHMS]
+    if bad:
+        return fail(f"unknown algorithm '{bad[0]}'; choose from {', '.join(ALGORITHMS)}", 2)
+    if args.preset not in PRESETS:
+        return fail(f"unknown preset '{args.preset}'; choose {' or '.join(PRESETS)}", 2)
+    cores = _cores()
+    workers = args.workers or cores
+    if workers > cores and not args.force_workers:
+        return fail(f"--workers {workers} is more than the {cores} cores available; pass --force-workers to insist", 2)
+    try:
+        jobs = plan(args.files, args.tasks, args.rewards, args.algos, args.seeds, args.preset, args.steps)
+        for j in jobs:  # every reward and setting checked before anything trains
+            from .sweep import _config
+
+            _config(j, asap_dsl.load(j.spec))
+    except asap_dsl.SpecError as e:
+        err.write(f"{e.report()}\n")
+        return 1
+    except KeyError as e:
+        return fail(e.args[0], 2)
+    except ValueError as e:  # ConfigError
+        return fail(str(e), 2)
+    progress = None if args.quiet else SweepProgress(len(jobs), err)
+    try:
+        res = compare(args.files, tasks=args.tasks, rewards=args.rewards, algos=args.algos, seeds=args.seeds,
+                      steps=args.steps, preset=args.preset, workers=workers, ray=args.ray, out=args.out,
+                      episodes=args.episodes, on_event=progress, oracle_workers=cores)
+    except SweepInterrupted as e:
+        if progress:
+            progress.close()
+        err.write(f"interrupted: {sum(r['status'] == 'finished' for r in e.done)} of {len(jobs)} runs finished; "
+                  "running ones were checkpointed. Run the same command again to continue.\n")
+        return 130
+    except RuntimeError as e:  # Ray missing or unreachable
+        if progress:
+            progress.close()
+        return fail(str(e), 1)
+    if progress:
+        progress.close()
+    md = markdown(res.data)
+    table1 = md.split("## Table 1 — rewards", 1)[1].split("\n## ", 1)[0].strip()
+    out.write(f"report: {res.markdown} and {res.html} ({len(res.results)} runs, {res.seconds:.0f} s)\n\n")
+    out.write("Table 1 — rewards\n\n" + table1 + "\n")
+    return 0

@@ -1,0 +1,273 @@
+"""The comparison report: the paper's tables beside the physical limit, as Markdown and as one
+self-contained HTML file (inline CSS, plots embedded as data URIs: it makes no request).
+
+Input is plain data gathered by the sweep (:mod:`.compare`): per run its job, manifest, final
+evaluation and training curves; per task the oracle's ceiling and the non-RL methods (greedy,
+oracle replay). Nothing here trains, evaluates or reads run directories.
+
+Cells are the mean ± standard deviation over seeds of a method's success rate, with the 95%
+Wilson interval of the successes pooled over seeds (seeds × episodes trials); the best method of
+each column (the ceiling aside) is in bold.
+"""
+
+from __future__ import annotations
+
+import base64
+import html
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Optional
+
+import numpy as np
+
+from asap_dsl.runs import atomic_write
+from asap_dsl.stats import mean_spread, wilson_interval
+
+__all__ = ["Column", "Method", "ReportData", "markdown", "html_page", "write"]
+
+REWARD_NAMES = {"asap": "ASAP-Phi", "rho": "ρ reward", "distance": "d reward"}
+
+
+@dataclass
+class Column:
+    """One (spec, task) pair: a column of every table."""
+
+    spec: str
+    task: str
+    tolerances: list[int]
+    deadline: int
+    ceiling: Optional[dict] = None     # {T: {"rate", "ci95", ...}}, or None (black box / unsupported)
+    bound: Optional[str] = None        # "oracle (exact)" / "oracle (local)"
+    oracle_steps: Optional[list] = None
+
+    @property
+    def name(self) -> str:
+        short = {"reach": "R", "reach_avoid": "R&A"}.get(self.task, self.task)
+        return f"{Path(self.spec).stem} {short}"
+
+
+@dataclass
+class Method:
+    """A row: one method (reward × algorithm, or a non-RL controller) and its evaluations per
+    column, one per seed."""
+
+    key: str
+    label: str
+    kind: str                                  # "rl" | "greedy" | "oracle"
+    evaluations: dict[str, list[dict]] = field(default_factory=dict)  # column name -> evaluation dicts
+
+    def cell(self, col: str, T: int) -> Optional[dict]:
+        evs = self.evaluations.get(col) or []
+        rates, k, n = [], 0, 0
+        for ev in evs:
+            for row in ev["rows"]:
+                if row["tolerance"] == T and row["rate"] is not None:
+                    rates.append(row["rate"])
+                    k += row["count"]
+                    n += row["states"]
+        if not rates:
+            return None
+        ms = mean_spread(rates)
+        return {"mean": ms["mean"], "std": ms["std"], "seeds": ms["n"], "ci95": list(wilson_interval(k, n))}
+
+    def gap(self, col: str) -> Optional[dict]:
+        gaps = [ev["gap"]["gap"] for ev in self.evaluations.get(col) or [] if ev.get("gap") and ev["gap"].get("gap") is not None]
+        if not gaps:
+            return None
+        return mean_spread(gaps)
+
+
+@dataclass
+class ReportData:
+    title: str
+    columns: list[Column]
+    table1: list[Method]      # rewards (first algorithm) + greedy
+    table2: list[Method]      # algorithms (first reward)
+    runs: list[dict]          # what was run: label, spec hash, seed, preset, steps, seconds, versions
+    plots: dict[str, bytes] = field(default_factory=dict)  # name -> PNG
+    notes: list[str] = field(default_factory=list)
+    versions: dict[str, str] = field(default_factory=dict)
+    seconds: float = 0.0
+
+
+def _pct(x: Optional[float]) -> str:
+    return "n/a" if x is None or not math.isfinite(x) else f"{100 * x:.1f}"
+
+
+def _cell_text(c: Optional[dict], bold: bool, md: bool) -> str:
+    if c is None:
+        return "—"
+    core = f"{_pct(c['mean'])} ± {_pct(c['std'])}" if c["seeds"] > 1 else f"{_pct(c['mean'])}"
+    if bold:
+        core = f"**{core}**" if md else f"<b>{core}</b>"
+    return f"{core} [{_pct(c['ci95'][0])}, {_pct(c['ci95'][1])}]"
+
+
+def _best(methods: list[Method], col: str, T: int) -> Optional[float]:
+    vals = [c["mean"] for m in methods if m.kind != "oracle" for c in [m.cell(col, T)] if c is not None]
+    return max(vals) if vals else None
+
+
+def _tolerances(columns: list[Column]) -> list[int]:
+    return sorted({T for c in columns for T in c.tolerances}, reverse=True)
+
+
+def table_rows(methods: list[Method], columns: list[Column], md: bool) -> list[list[str]]:
+    """Rows of a Table-1-style block: for each tolerance, each method, then the ceiling."""
+    rows = []
+    for T in _tolerances(columns):
+        for m in methods:
+            row = [str(T), m.label]
+            for col in columns:
+                c = m.cell(col.name, T) if T in col.tolerances else None
+                best = _best(methods, col.name, T)
+                row.append(_cell_text(c, c is not None and best is not None and c["mean"] >= best - 1e-12 and m.kind != "oracle", md))
+            rows.append(row)
+        ceil = [str(T), "oracle ceiling"]
+        for col in columns:
+            r = (col.ceiling or {}).get(T)
+            ceil.append("—" if r is None else f"{_pct(r['rate'])} [{_pct(r['ci95'][0])}, {_pct(r['ci95'][1])}]")
+        rows.append(ceil)
+    return rows
+
+
+def gap_rows(methods: list[Method], columns: list[Column]) -> list[list[str]]:
+    rows = []
+    for m in methods:
+        row = [m.label]
+        for col in columns:
+            g = m.gap(col.name)
+            row.append("—" if g is None else (f"{g['mean']:.3f}" + (f" ± {g['std']:.3f}" if g["n"] > 1 else "")))
+        rows.append(row)
+    return rows
+
+
+def _md_table(header: list[str], rows: list[list[str]]) -> str:
+    out = ["| " + " | ".join(header) + " |", "|" + "|".join("---" for _ in header) + "|"]
+    out += ["| " + " | ".join(r) + " |" for r in rows]
+    return "\n".join(out)
+
+
+def _bounds(columns: list[Column]) -> str:
+    parts = []
+    for c in columns:
+        parts.append(f"{c.name}: {c.bound or 'no oracle (black box or unsupported task)'}")
+    return "; ".join(parts)
+
+
+PLOT_TITLES = {
+    "success_vs_tolerance": "Success rate against tolerance, beside the oracle's ceiling",
+    "steps_vs_oracle": "Each state's steps to reach against the oracle's minimum",
+    "trajectories": "Example trajectories beside the oracle's (robustness of asap over time)",
+    "training_curves": "Training curves: validation success against wall time and steps",
+}
+
+
+def markdown(data: ReportData, plot_dir: str = "plots") -> str:
+    cols = data.columns
+    header = ["within", "method"] + [c.name for c in cols]
+    lines = [f"# {data.title}", "",
+             "Success rate (%) on the seeded evaluation states (seed 2024): mean ± standard deviation over seeds, "
+             "[95% Wilson interval of the pooled successes]; best per column in bold. Ceiling: " + _bounds(cols) + ".",
+             "", "## Table 1 — rewards", "", _md_table(header, table_rows(data.table1, cols, md=True)), ""]
+    if data.table2:
+        lines += ["## Table 2 — algorithms", "", _md_table(header, table_rows(data.table2, cols, md=True)), ""]
+    lines += ["## ASAP gap", "",
+              "Median over the states both reach of (method's steps) / (oracle's minimum); 1.000 is the physical limit "
+              "(mean ± standard deviation over seeds).", "",
+              _md_table(["method"] + [c.name for c in cols], gap_rows(_unique(data.table1 + data.table2), cols)), ""]
+    for name, title in PLOT_TITLES.items():
+        if name in data.plots:
+            lines += [f"## {title}", "", f"![{title}]({plot_dir}/{name}.png)", ""]
+    lines += ["## What was run", "", _md_table(["run", "spec sha256", "seed", "preset", "steps", "train s", "status"],
+                                                [[r["label"], r["spec_hash"][:12], str(r["seed"]), r["preset"],
+                                                  f"{r['steps']:,}", f"{r['seconds']:.1f}", r["status"]] for r in data.runs]),
+              "", "Package versions: " + ", ".join(f"{k} {v}" for k, v in data.versions.items()) + ".",
+              f"Report built in {data.seconds:.1f} s."]
+    for n in data.notes:
+        lines += ["", f"Note: {n}"]
+    return "\n".join(lines) + "\n"
+
+
+def _unique(methods: list[Method]) -> list[Method]:
+    seen, out = set(), []
+    for m in methods:
+        if m.key not in seen:
+            seen.add(m.key)
+            out.append(m)
+    return out
+
+
+CSS = """
+body { font-family: -apple-system, 'Segoe UI', Helvetica, Arial, sans-serif; margin: 2em auto; max-width: 75em;
+       color: #1f2328; padding: 0 1em; }
+h1 { font-size: 1.6em; border-bottom: 1px solid #d0d7de; padding-bottom: .3em; }
+h2 { font-size: 1.25em; margin-top: 1.8em; }
+table { border-collapse: collapse; margin: .8em 0; font-size: .88em; }
+th, td { border: 1px solid #d0d7de; padding: .3em .6em; text-align: right; white-space: nowrap; }
+th { background: #f6f8fa; }
+td:nth-child(-n+2) { text-align: left; }
+tr.ceiling td { background: #fff8c5; font-style: italic; }
+img { max-width: 100%; border: 1px solid #d0d7de; margin: .5em 0; }
+p.caption { color: #57606a; font-size: .9em; }
+"""
+
+
+def _html_table(header: list[str], rows: list[list[str]], table_id: str, ceiling_label: str = "oracle ceiling") -> str:
+    out = [f'<table id="{table_id}">', "<thead><tr>" + "".join(f"<th>{html.escape(h)}</th>" for h in header) + "</tr></thead>",
+           "<tbody>"]
+    for r in rows:
+        cls = ' class="ceiling"' if len(r) > 1 and r[1] == ceiling_label else ""
+        cells = "".join(f"<td>{c}</td>" for c in r)  # cells are built from numbers and escaped labels
+        out.append(f"<tr{cls}>{cells}</tr>")
+    out.append("</tbody></table>")
+    return "\n".join(out)
+
+
+def _escape_rows(rows: list[list[str]], keep_html_from: int) -> list[list[str]]:
+    return [[c if i >= keep_html_from else html.escape(c) for i, c in enumerate(r)] for r in rows]
+
+
+def html_page(data: ReportData) -> str:
+    cols = data.columns
+    header = ["within", "method"] + [c.name for c in cols]
+    body = [f"<h1>{html.escape(data.title)}</h1>",
+            '<p class="caption">Success rate (%) on the seeded evaluation states (seed 2024): mean ± standard deviation '
+            "over seeds, [95% Wilson interval of the pooled successes]; best per column in bold. Ceiling: "
+            + html.escape(_bounds(cols)) + ".</p>",
+            "<h2>Table 1 — rewards</h2>", _html_table(header, _escape_rows(table_rows(data.table1, cols, md=False), 2), "table1")]
+    if data.table2:
+        body += ["<h2>Table 2 — algorithms</h2>",
+                 _html_table(header, _escape_rows(table_rows(data.table2, cols, md=False), 2), "table2")]
+    body += ["<h2>ASAP gap</h2>",
+             '<p class="caption">Median over the states both reach of (method\'s steps) / (oracle\'s minimum); 1.000 is '
+             "the physical limit (mean ± standard deviation over seeds).</p>",
+             _html_table(["method"] + [c.name for c in cols],
+                         _escape_rows(gap_rows(_unique(data.table1 + data.table2), cols), 99), "gap")]
+    for name, title in PLOT_TITLES.items():
+        if name in data.plots:
+            b64 = base64.b64encode(data.plots[name]).decode("ascii")
+            body += [f"<h2>{html.escape(title)}</h2>",
+                     f'<img id="plot-{name}" alt="{html.escape(title)}" src="data:image/png;base64,{b64}">']
+    runs = [[r["label"], r["spec_hash"][:12], str(r["seed"]), r["preset"], f"{r['steps']:,}", f"{r['seconds']:.1f}",
+             r["status"]] for r in data.runs]
+    body += ["<h2>What was run</h2>",
+             _html_table(["run", "spec sha256", "seed", "preset", "steps", "train s", "status"], _escape_rows(runs, 99), "runs"),
+             "<p>Package versions: " + html.escape(", ".join(f"{k} {v}" for k, v in data.versions.items()))
+             + f". Report built in {data.seconds:.1f} s.</p>"]
+    for n in data.notes:
+        body.append(f"<p><b>Note:</b> {html.escape(n)}</p>")
+    return ("<!DOCTYPE html>\n<html lang=\"en\"><head><meta charset=\"utf-8\">"
+            f"<title>{html.escape(data.title)}</title><style>{CSS}</style></head>\n<body>\n"
+            + "\n".join(body) + "\n</body></html>\n")
+
+
+def write(out_dir: Path, data: ReportData) -> dict[str, Path]:
+    """Write ``report.md``, ``report.html`` and ``plots/*.png`` into ``out_dir`` (atomically)."""
+    out_dir = Path(out_dir)
+    for name, png in data.plots.items():
+        atomic_write(out_dir / "plots" / f"{name}.png", png)
+    atomic_write(out_dir / "report.md", markdown(data))
+    atomic_write(out_dir / "report.html", html_page(data))
+    return {"markdown": out_dir / "report.md", "html": out_dir / "report.html"}

@@ -1,0 +1,181 @@
+"""``asapc compare``: a tiny sweep end to end, its report (Markdown and self-contained HTML, checked
+in headless Chromium), resumption after SIGTERM, the greedy and oracle controllers, and Ray."""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import asap_dsl
+from asap_dsl import cli
+from asap_dsl.runs import RunDir
+from conftest import RAIL
+
+TINY = RAIL
+
+FLAGS = ["--rewards", "asap,rho", "--seeds", "1", "--steps", "400", "--episodes", "60", "--workers", "2"]
+
+
+def _sweep(spec, out, *extra, timeout=600):
+    cmd = [sys.executable, "-m", "asap_dsl.cli", "compare", str(spec), "--out", str(out), *FLAGS, *extra]
+    return subprocess.run(cmd, capture_output=True, text=True, timeout=timeout, env=dict(os.environ))
+
+
+def _manifests(out: Path) -> dict:
+    return {p.parent.name: json.loads(p.read_text()) for p in sorted((out / "runs").glob("*/run.json"))}
+
+
+def test_greedy_and_oracle_controllers(tiny):
+    from asap_dsl.backends.controllers import GreedyController, OracleController, candidate_actions
+    from asap_dsl.backends.oracle import run as oracle_run
+    from asap_dsl.rollout import rollout
+
+    prog = asap_dsl.load(tiny)
+    grid = candidate_actions(np.array([-1.0, -2.0]), np.array([1.0, 2.0]), budget=25)
+    assert grid.shape == (25, 2) and {tuple(c) for c in grid} >= {(-1, -2), (1, 2), (-1, 2), (1, -2)}
+    states = np.array([[-1.0], [0.0], [1.5], [1.0]])
+    g = rollout(prog, "go", GreedyController(prog, "go"), states)
+    # full speed towards the goal is both greedy and time-optimal on a rail
+    assert g.t_reach.tolist() == [9.0, 4.0, 2.0, 0.0]
+    rep = oracle_run(prog, "go", states=states)
+    o = rollout(prog, "go", OracleController([r.x0 for r in rep.results], [r.actions for r in rep.results], 1), states)
+    assert np.array_equal(o.t_reach, rep.steps)  # the replay reproduces the oracle's minima exactly
+
+
+def test_compare_writes_the_report_and_reuses_finished_runs(tiny, tmp_path):
+    out = tmp_path / "report"
+    r = _sweep(tiny, out)
+    assert r.returncode == 0, r.stderr
+    assert "Traceback" not in r.stderr
+    assert "Table 1 — rewards" in r.stdout and "oracle ceiling" in r.stdout
+    md = (out / "report.md").read_text()
+    for needle in ("## Table 1 — rewards", "ASAP-Phi (sac)", "ρ reward (sac)", "greedy look-ahead", "oracle ceiling",
+                   "## ASAP gap", "## What was run", "plots/success_vs_tolerance.png", "oracle ("):
+        assert needle in md, needle
+    for name in ("success_vs_tolerance", "steps_vs_oracle", "trajectories", "training_curves"):
+        assert (out / "plots" / f"{name}.png").read_bytes()[:4] == b"\x89PNG"
+    html = (out / "report.html").read_text()
+    assert "http://" not in html and "https://" not in html and "<link" not in html and "<script" not in html
+    first = _manifests(out)
+    assert len(first) == 2 and all(m["status"] == "finished" for m in first.values())
+    # again: nothing is retrained, the report is the same
+    r2 = _sweep(tiny, out)
+    assert r2.returncode == 0, r2.stderr
+    assert _manifests(out) == first
+    assert "reused" in (out / "report.md").read_text()
+
+
+def test_compare_resumes_after_sigterm(tiny, tmp_path):
+    out = tmp_path / "report"
+    cmd = [sys.executable, "-m", "asap_dsl.cli", "compare", str(tiny), "--out", str(out), "--rewards",
+           "asap,rho,distance", "--seeds", "1", "--steps", "3000", "--episodes", "40", "--workers", "1", "--quiet"]
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    deadline = time.time() + 240
+    while time.time() < deadline:  # wait for the first run to finish and the second to be training
+        m = _manifests(out)
+        if any(v["status"] == "finished" for v in m.values()) and len(m) >= 2:
+            break
+        time.sleep(0.2)
+    time.sleep(1.0)
+    proc.send_signal(signal.SIGTERM)
+    _, err = proc.communicate(timeout=120)
+    assert proc.returncode == 130, err
+    assert "Traceback" not in err and "same command" in err
+    before = _manifests(out)
+    assert sorted(m["status"] for m in before.values()) == ["finished", "interrupted"], before
+    finished = next(k for k, m in before.items() if m["status"] == "finished")
+    interrupted = next(k for k, m in before.items() if m["status"] == "interrupted")
+    proc = subprocess.run(cmd, capture_output=True, text=True, timeout=600)
+    assert proc.returncode == 0, proc.stderr
+    after = _manifests(out)
+    assert len(after) == 3 and all(m["status"] == "finished" for m in after.values())
+    assert after[finished] == before[finished]                        # not retrained
+    assert after[interrupted]["created"] == before[interrupted]["created"]  # resumed, not started over
+    assert after[interrupted]["steps_done"] >= 3000 > before[interrupted]["steps_done"]
+    assert (out / "report.html").is_file() and "ρ reward" in (out / "report.md").read_text()
+
+
+def _chromium() -> str | None:
+    for name in ("chromium", "chromium-browser", "google-chrome"):
+        path = shutil.which(name)
+        if path:
+            return path
+    return None
+
+
+def test_html_report_renders_in_headless_chromium_without_requests(tiny, tmp_path):
+    exe = _chromium()
+    if exe is None:
+        if os.environ.get("CI"):
+            pytest.fail("CI must install Debian's chromium (see .ci/run)")
+        pytest.skip("chromium is not installed (apt-get install chromium)")
+    playwright = pytest.importorskip("playwright.sync_api")
+    out = tmp_path / "report"
+    r = _sweep(tiny, out)
+    assert r.returncode == 0, r.stderr
+    page_file = (out / "report.html").resolve()
+    requests = []
+    with playwright.sync_playwright() as p:
+        browser = p.chromium.launch(executable_path=exe, args=["--no-sandbox", "--disable-gpu",
+                                                                "--disable-background-networking"])
+        page = browser.new_page(viewport={"width": 1400, "height": 1000})
+        page.on("request", lambda req: requests.append(req.url))
+        page.goto(page_file.as_uri())
+        page.wait_for_load_state("load")
+        tables = page.eval_on_selector_all("table", "els => els.map(e => e.id)")
+        images = page.eval_on_selector_all("img", "els => els.map(e => [e.id, e.complete, e.naturalWidth])")
+        shot = tmp_path / "report.png"
+        page.screenshot(path=str(shot), full_page=True)
+        browser.close()
+    assert tables == ["table1", "gap", "runs"]
+    assert {i[0] for i in images} == {"plot-success_vs_tolerance", "plot-steps_vs_oracle", "plot-trajectories",
+                                      "plot-training_curves"}
+    assert all(complete and width > 100 for _, complete, width in images)
+    assert [u for u in requests if not u.startswith("data:")] == [page_file.as_uri()]
+    assert shot.stat().st_size > 20_000
+
+
+def test_ray_sweep_matches_the_local_one(tiny, tmp_path):
+    ray = pytest.importorskip("ray")
+    from asap_dsl.backends.sweep import execute, plan
+
+    jobs = plan([str(tiny)], None, ["asap"], ["sac"], 1, "default", 300)
+    local = execute(jobs, str(tmp_path / "local"), workers=1)
+    ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False)
+    try:
+        remote = execute(jobs, str(tmp_path / "ray"), ray_address="auto")
+    finally:
+        ray.shutdown()
+    assert [r["status"] for r in remote] == ["finished"]
+    a = json.loads((Path(local[0]["run_dir"]) / "eval.json").read_text())
+    b = json.loads((Path(remote[0]["run_dir"]) / "eval.json").read_text())
+    assert a["per_state"] == b["per_state"] and a["rows"] == b["rows"]  # one torch thread, fixed seed: same run
+    assert Path(local[0]["run_dir"]).name == Path(remote[0]["run_dir"]).name
+
+
+def test_bad_compare_flags(tiny, capsys):
+    def run(*argv):
+        try:
+            code = cli.main([str(a) for a in argv])
+        except SystemExit as e:
+            code = e.code
+        return code, capsys.readouterr().err
+
+    code, err = run("compare", tiny, "--algos", "sacc")
+    assert code == 2 and "unknown algorithm 'sacc'" in err
+    code, err = run("compare", tiny, "--workers", "1000")
+    assert code == 2 and "--force-workers" in err
+    code, err = run("compare", tiny, "--rewards", "asap,bogus")
+    assert code == 2 and "unknown reward 'bogus'" in err
+    code, err = run("compare", tiny, "--tasks", "nope")
+    assert code == 2 and "no task named 'nope'" in err
+    assert "Traceback" not in err
