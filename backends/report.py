@@ -176,7 +176,7 @@ def markdown(data: ReportData, plot_dir: str = "plots") -> str:
     lines += ["## ASAP gap", "",
               "Median over the states both reach of (method's steps) / (oracle's minimum); 1.000 is the physical limit "
               "(mean ± standard deviation over seeds).", "",
-              _md_table(["method"] + [c.name for c in cols], gap_rows(_unique(data.table1 + data.table2), cols)), ""]
+              _md_table(["method"] + [c.name for c in cols], gap_rows(unique(data.table1 + data.table2), cols)), ""]
     for name, title in PLOT_TITLES.items():
         if name in data.plots:
             lines += [f"## {title}", "", f"![{title}]({plot_dir}/{name}.png)", ""]
@@ -190,7 +190,7 @@ def markdown(data: ReportData, plot_dir: str = "plots") -> str:
     return "\n".join(lines) + "\n"
 
 
-def _unique(methods: list[Method]) -> list[Method]:
+def unique(methods: list[Method]) -> list[Method]:
     seen, out = set(), []
     for m in methods:
         if m.key not in seen:
@@ -244,7 +244,7 @@ def html_page(data: ReportData) -> str:
              '<p class="caption">Median over the states both reach of (method\'s steps) / (oracle\'s minimum); 1.000 is '
              "the physical limit (mean ± standard deviation over seeds).</p>",
              _html_table(["method"] + [c.name for c in cols],
-                         _escape_rows(gap_rows(_unique(data.table1 + data.table2), cols), 99), "gap")]
+                         _escape_rows(gap_rows(unique(data.table1 + data.table2), cols), 99), "gap")]
     for name, title in PLOT_TITLES.items():
         if name in data.plots:
             b64 = base64.b64encode(data.plots[name]).decode("ascii")
