@@ -171,10 +171,12 @@ def _callbacks():
             n = self.num_timesteps
             if s.progress is not None:
                 s.progress.advance(n)
-            if n >= s.next_validation:
+            if n >= s.next_validation or s.seconds >= s.next_validation_time:
                 s.validate(self.model, n, self.logger)
                 while s.next_validation <= n:
                     s.next_validation += s.cfg.validate_every
+                if s.cfg.time_limit is not None:  # a time-limited run validates on the clock too
+                    s.next_validation_time = s.seconds + s.cfg.time_limit / max(1, s.validations)
             if s.stop.signal is not None:
                 return False
             if s.cfg.time_limit is not None and s.seconds >= s.cfg.time_limit:
@@ -211,6 +213,8 @@ class _Session:
         self.curves: list[dict] = []
         self.best: Optional[dict] = None
         self.next_validation = cfg.validate_every
+        self.validations = max(1, cfg.steps // max(1, cfg.validate_every))
+        self.next_validation_time = (cfg.time_limit / self.validations) if cfg.time_limit is not None else float("inf")
         self.seconds_before = 0.0
         self.stop = _StopFlag()
         self.time_up = False

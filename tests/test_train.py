@@ -283,3 +283,4 @@ def test_time_limit_ends_the_run_as_finished(tiny, tmp_path):
     assert 3.0 <= res.seconds < 10.0
     assert RunDir(tmp_path / "r").read_manifest()["config"]["time_limit"] == 3.0
     assert res.evaluation is not None
+    assert len(res.curves) >= 10  # validated on the clock, though the step budget is far away
