@@ -16,6 +16,7 @@ from typing import Optional, Sequence
 from . import __version__
 from .diagnostics import Diagnostic, SpecError, format_diagnostic
 from .program import Program, analyse, loads, read_source
+from .runs import json_safe
 from .stl import ir
 
 
@@ -150,7 +151,7 @@ def cmd_show(args: argparse.Namespace) -> int:
         raise _UsageError(_unknown_task(args.task, prog))
     data = show_data(prog, args.task)
     if args.format == "json":
-        print(json.dumps(_json_safe(data), indent=2, allow_nan=False))
+        print(json.dumps(json_safe(data), indent=2, allow_nan=False))
         return 0
     s = data["system"]
     out = [f"{prog.file}", "", f"system {s['name']}: {s['dynamics']}" + (f", integrator {s['integrator']}" if s["integrator"] else "")
@@ -194,17 +195,6 @@ def cmd_show(args: argparse.Namespace) -> int:
         out.append(format_diagnostic(w, prog.source))
     print("\n".join(out))
     return 0
-
-
-def _json_safe(x):
-    """Strict JSON: infinite bounds and horizons become the strings "inf" / "-inf"."""
-    if isinstance(x, float) and not math.isfinite(x):
-        return "inf" if x > 0 else ("-inf" if x < 0 else "nan")
-    if isinstance(x, dict):
-        return {k: _json_safe(v) for k, v in x.items()}
-    if isinstance(x, (list, tuple)):
-        return [_json_safe(v) for v in x]
-    return x
 
 
 class _UsageError(Exception):

@@ -25,10 +25,10 @@ import os
 import tempfile
 from contextlib import contextmanager
 from pathlib import Path
-from typing import Any, Callable, Iterator, Optional, Union
+from typing import Any, Iterator, Union
 
 __all__ = ["RunError", "RunDir", "atomic_write", "atomic_write_json", "atomic_path", "default_run_name",
-           "package_versions", "spec_hash", "json_safe"]
+           "json_safe", "package_versions", "read_json", "spec_hash"]
 
 MANIFEST = "run.json"
 SPEC_COPY = "spec.asap"
@@ -232,10 +232,3 @@ def read_json(path: PathLike, what: str) -> Any:
     except (OSError, UnicodeDecodeError, json.JSONDecodeError) as err:
         raise RunError(f"{path}: unreadable {what} ({_short(err)})") from None
 
-
-def writer_for(path: PathLike) -> Callable[[Callable[[Path], None]], None]:
-    """``writer_for(p)(save)`` calls ``save(tmp)`` and moves ``tmp`` onto ``p`` atomically."""
-    def write(save: Callable[[Path], None]) -> None:
-        with atomic_path(path) as tmp:
-            save(tmp)
-    return write

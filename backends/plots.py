@@ -24,6 +24,11 @@ def _figure(n: int, height: float = 3.2, rows_of: int = 1):
     return plt, fig, axes
 
 
+def _hide_unused(axes, used: int) -> None:
+    for ax in list(axes.flat)[used:]:
+        ax.axis("off")
+
+
 def _png(plt, fig) -> bytes:
     buf = io.BytesIO()
     fig.tight_layout()
@@ -60,8 +65,7 @@ def success_vs_tolerance(columns, methods) -> bytes:
         ax.set_ylim(0, 101)
         ax.grid(alpha=0.3)
     axes.flat[0].legend(fontsize=7, loc="upper left")
-    for ax in list(axes.flat)[len(columns):]:
-        ax.axis("off")
+    _hide_unused(axes, len(columns))
     return _png(plt, fig)
 
 
@@ -89,8 +93,7 @@ def steps_vs_oracle(columns, method) -> Optional[bytes]:
         ax.set_xlabel("oracle's minimum (steps)")
         ax.set_ylabel("steps to reach")
         ax.grid(alpha=0.3)
-    for ax in list(axes.flat)[len(cols):]:
-        ax.axis("off")
+    _hide_unused(axes, len(cols))
     return _png(plt, fig)
 
 
@@ -113,8 +116,7 @@ def trajectories(columns, examples: dict) -> Optional[bytes]:
         ax.set_xlabel("step")
         ax.set_ylabel("robustness of asap")
         ax.grid(alpha=0.3)
-    for ax in list(axes.flat)[len(cols):]:
-        ax.axis("off")
+    _hide_unused(axes, len(cols))
     return _png(plt, fig)
 
 

@@ -17,9 +17,7 @@ import html
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Optional
-
-import numpy as np
+from typing import Optional
 
 from asap_dsl.runs import atomic_write
 from asap_dsl.stats import mean_spread, wilson_interval

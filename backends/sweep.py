@@ -15,7 +15,6 @@ import json
 import os
 import signal
 import threading
-import time
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any, Callable, Optional, Sequence

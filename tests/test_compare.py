@@ -17,7 +17,6 @@ import pytest
 
 import asap_dsl
 from asap_dsl import cli
-from asap_dsl.runs import RunDir
 from conftest import RAIL
 
 TINY = RAIL

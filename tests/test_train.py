@@ -9,14 +9,13 @@ import signal
 import subprocess
 import sys
 import time
-from pathlib import Path
 
 import numpy as np
 import pytest
 
 import asap_dsl
 from asap_dsl import cli
-from asap_dsl.runs import RunDir, RunError
+from asap_dsl.runs import RunDir
 from conftest import RAIL
 
 # A one-dimensional plant: fast to simulate and to learn something on.
