@@ -139,16 +139,20 @@ class ConsoleProgress:
         if not self.live:
             print(head + (f", resuming at {done:,}" if done else ""), file=self.stream, flush=True)
             return
-        from rich.console import Console
+        from rich.console import Console, Group
+        from rich.live import Live
         from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
+        from rich.text import Text
 
-        self.bar = Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(),
-                            TextColumn("{task.fields[rate]}"), TimeElapsedColumn(), TextColumn("ETA"),
-                            TimeRemainingColumn(), TextColumn("\n  {task.fields[val]}"),
-                            console=Console(file=self.stream), refresh_per_second=4)
-        self.bar.console.print(head)
-        self.bar.start()
-        self.task_id = self.bar.add_task("steps", total=config.steps, completed=done, rate="", val="validation: pending")
+        console = Console(file=self.stream)
+        # Two lines: the bar, then the latest validation (too wide to share the bar's line).
+        self.bar = Progress(TextColumn("steps"), BarColumn(), MofNCompleteColumn(), TextColumn("{task.fields[rate]}"),
+                            TimeElapsedColumn(), TextColumn("ETA"), TimeRemainingColumn(), console=console)
+        self.text = Text("  validation: pending", overflow="fold")
+        console.print(head)
+        self.task_id = self.bar.add_task("steps", total=config.steps, completed=done, rate="")
+        self.view = Live(Group(self.bar, self.text), console=console, refresh_per_second=4)
+        self.view.start()
 
     def advance(self, done: int) -> None:
         if self.bar is not None:
@@ -159,7 +163,7 @@ class ConsoleProgress:
     def validated(self, row: dict) -> None:
         text = f"validation at {row['steps']:,} steps: {validation_text(row, self.ceiling)}" + ("  [best]" if row["best"] else "")
         if self.bar is not None:
-            self.bar.update(self.task_id, val=text)
+            self.text.plain = "  " + text
         else:  # a log line at most every 10 s, and for every new best
             now = time.perf_counter()
             if row["best"] or now - self.printed >= 10.0 or row["steps"] >= self.total:
@@ -169,7 +173,7 @@ class ConsoleProgress:
 
     def finish(self) -> None:
         if self.bar is not None:
-            self.bar.stop()
+            self.view.stop()
             self.bar = None
 
 

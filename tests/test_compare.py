@@ -145,20 +145,26 @@ def test_html_report_renders_in_headless_chromium_without_requests(tiny, tmp_pat
 
 def test_ray_sweep_matches_the_local_one(tiny, tmp_path):
     ray = pytest.importorskip("ray")
-    from asap_dsl.backends.sweep import execute, plan
+    from asap_dsl.backends.compare import compare
 
-    jobs = plan([str(tiny)], None, ["asap"], ["sac"], 1, "default", 300)
-    local = execute(jobs, str(tmp_path / "local"), workers=1)
+    kw = dict(rewards=("asap", "rho"), algos=("sac",), seeds=1, steps=300, episodes=40)
+    local = compare([str(tiny)], out=str(tmp_path / "local"), workers=1, **kw)
     ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False)
     try:
-        remote = execute(jobs, str(tmp_path / "ray"), ray_address="auto")
+        remote = compare([str(tiny)], out=str(tmp_path / "ray"), ray="auto", **kw)
     finally:
         ray.shutdown()
-    assert [r["status"] for r in remote] == ["finished"]
-    a = json.loads((Path(local[0]["run_dir"]) / "eval.json").read_text())
-    b = json.loads((Path(remote[0]["run_dir"]) / "eval.json").read_text())
-    assert a["per_state"] == b["per_state"] and a["rows"] == b["rows"]  # one torch thread, fixed seed: same run
-    assert Path(local[0]["run_dir"]).name == Path(remote[0]["run_dir"]).name
+    assert [r["status"] for r in remote.results] == ["finished", "finished"]
+    assert [Path(r["run_dir"]).name for r in remote.results] == [Path(r["run_dir"]).name for r in local.results]
+    for a, b in zip(local.results, remote.results):  # one torch thread, fixed seed: the same runs
+        ea = json.loads((Path(a["run_dir"]) / "eval.json").read_text())
+        eb = json.loads((Path(b["run_dir"]) / "eval.json").read_text())
+        assert ea["per_state"] == eb["per_state"] and ea["rows"] == eb["rows"]
+
+    def tables(md: str) -> str:  # everything but the wall times of "What was run"
+        return md.split("## What was run")[0]
+
+    assert tables(local.markdown.read_text()) == tables(remote.markdown.read_text())
 
 
 def test_bad_compare_flags(tiny, capsys):
