@@ -217,6 +217,8 @@ def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="asapc", description="Check, compile and solve .asap specifications of "
                                 "control tasks to fulfil as soon as possible.")
     p.add_argument("--version", action="version", version=f"asapc {__version__}")
+    p.add_argument("--max-spec-size", type=positive_int, metavar="MB", default=None,
+                   help="read spec files up to this size (default 10 MB)")
     sub = p.add_subparsers(dest="command", metavar="COMMAND")
     sub.required = True
 
@@ -273,6 +275,10 @@ def positive_int(text: str) -> int:
 def main(argv: Optional[Sequence[str]] = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
+    if args.max_spec_size is not None:
+        from . import program
+
+        program.MAX_SPEC_BYTES = args.max_spec_size * 1024 * 1024
     try:
         return int(args.func(args) or 0)
     except SpecError as err:

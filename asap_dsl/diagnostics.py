@@ -37,7 +37,7 @@ RULES: dict[str, Rule] = {
     r.code: r
     for r in [
         Rule("E001", "syntax-error", "error", "The text does not follow the grammar."),
-        Rule("E002", "unreadable-file", "error", "The file is missing, a directory, not UTF-8 text, or empty."),
+        Rule("E002", "unreadable-file", "error", "The file is missing, a directory, not a regular file, larger than the limit (10 MB; `asapc --max-spec-size MB`), not UTF-8 text, or empty."),
         Rule("E101", "unknown-name", "error", "A name that is not declared (with the closest declared name)."),
         Rule("E102", "duplicate-name", "error", "A name declared twice, or a reserved constant redeclared."),
         Rule("E103", "wrong-kind", "error", "A name used as something it is not (a region as a number, a state as a formula, ...)."),

@@ -7,6 +7,7 @@ robustness, satisfaction, first-satisfaction step, online monitors) and :class:`
 from __future__ import annotations
 
 import os
+import stat
 from pathlib import Path
 from typing import Any, Optional, Union
 
@@ -182,21 +183,58 @@ def loads(text: str, name: str = "<string>") -> Program:
     return Program(model, [d for d in diagnostics if not d.is_error])
 
 
-def read_source(path: Union[str, os.PathLike]) -> str:
-    """Read a spec file as UTF-8 text, turning every way of failing into a positioned SpecError."""
+#: The largest spec file read (bytes); ``asapc --max-spec-size MB`` raises it.
+MAX_SPEC_BYTES = 10 * 1024 * 1024
+
+
+def _read_regular_file(p: Path, name: str, limit: int) -> bytes:
+    """The bytes of a regular file of at most ``limit`` bytes. Devices, pipes and sockets are
+    refused before anything is read (``/dev/zero`` never ends, a FIFO blocks)."""
+    def fail(message: str, hint: Optional[str] = None) -> SpecError:
+        return SpecError([make("E002", message, Span(0, 0, 0, 0), name, hint=hint)])
+
+    try:
+        fd = os.open(p, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0))
+    except FileNotFoundError:
+        raise fail("no such file") from None
+    except IsADirectoryError:
+        raise fail("this is a directory, not a spec file") from None
+    except PermissionError:
+        raise fail("permission denied") from None
+    except OSError as err:
+        raise fail(f"cannot read the file: {err.strerror or err}") from None
+    info = os.fstat(fd)
+    if not stat.S_ISREG(info.st_mode):
+        os.close(fd)
+        if stat.S_ISDIR(info.st_mode):
+            raise fail("this is a directory, not a spec file")
+        raise fail("not a regular file (a device, pipe or socket): a spec is a text file on disk")
+    with os.fdopen(fd, "rb") as f:
+        too_big = fail(f"the file is larger than the limit of {limit / 2**20:g} MB",
+                       hint="a spec is a few kilobytes; raise the limit with `asapc --max-spec-size MB`")
+        if info.st_size > limit:
+            raise too_big
+        try:
+            data = f.read(limit + 1)
+        except OSError as err:
+            raise fail(f"cannot read the file: {err.strerror or err}") from None
+        if len(data) > limit:  # it grew while being read
+            raise too_big
+    return data
+
+
+def read_source(path: Union[str, os.PathLike], max_bytes: Optional[int] = None) -> str:
+    """Read a spec file as UTF-8 text, turning every way of failing into a positioned SpecError.
+
+    Only regular files of at most ``max_bytes`` (default :data:`MAX_SPEC_BYTES`) are read; a
+    UTF-8 byte-order mark is skipped.
+    """
     p = Path(path)
     name = str(path)
     whole = Span(1, 1, 1, 2)
-    try:
-        data = p.read_bytes()
-    except FileNotFoundError:
-        raise SpecError([make("E002", "no such file", Span(0, 0, 0, 0), name)]) from None
-    except IsADirectoryError:
-        raise SpecError([make("E002", "this is a directory, not a spec file", Span(0, 0, 0, 0), name)]) from None
-    except PermissionError:
-        raise SpecError([make("E002", "permission denied", Span(0, 0, 0, 0), name)]) from None
-    except OSError as err:
-        raise SpecError([make("E002", f"cannot read the file: {err.strerror or err}", Span(0, 0, 0, 0), name)]) from None
+    data = _read_regular_file(p, name, MAX_SPEC_BYTES if max_bytes is None else int(max_bytes))
+    if data.startswith(b"\xef\xbb\xbf"):  # a BOM that some editors write: not part of the text
+        data = data[3:]
     try:
         text = data.decode("utf-8")
     except UnicodeDecodeError as err:

@@ -146,3 +146,30 @@ def test_show_json_is_strict_json_with_unbounded_values(capsys, tmp_path):
     assert code == 0
     data = json.loads(out, parse_constant=lambda c: pytest.fail(f"non-standard JSON constant {c}"))
     assert data["tasks"]["t"]["rho_bounds"] == ["-inf", 1.0]
+
+
+def test_only_regular_files_of_bounded_size_are_read(capsys, tmp_path, monkeypatch):
+    """/dev/zero never ends and a FIFO blocks: both are refused before anything is read."""
+    import os
+
+    from asap_dsl import program
+
+    fifo = tmp_path / "pipe.asap"
+    os.mkfifo(fifo)
+    for path in ("/dev/zero", str(fifo)):
+        code, out, _ = run(capsys, "lint", path)
+        assert code == 1 and "E002" in out and "not a regular file" in out
+    big = tmp_path / "big.asap"
+    big.write_text((ROOT / "examples" / "double_integrator.asap").read_text() + ("# padding\n" * 120_000))
+    monkeypatch.setattr(program, "MAX_SPEC_BYTES", program.MAX_SPEC_BYTES)  # restored after the test
+    code, out, _ = run(capsys, "--max-spec-size", "1", "lint", str(big))
+    assert code == 1 and "larger than the limit of 1 MB" in out and "--max-spec-size" in out
+    code, out, _ = run(capsys, "--max-spec-size", "2", "lint", str(big))
+    assert code == 0, out
+
+
+def test_a_utf8_byte_order_mark_is_skipped(capsys, tmp_path):
+    spec = tmp_path / "bom.asap"
+    spec.write_bytes(b"\xef\xbb\xbf" + (ROOT / "examples" / "double_integrator.asap").read_bytes())
+    code, out, _ = run(capsys, "lint", str(spec))
+    assert code == 0, out
