@@ -261,6 +261,41 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
+MAX_EPISODES = 1_000_000  # initial states per evaluation or oracle run
+
+
+def available_cores() -> int:
+    """The cores this process may run on (the default and the cap of every --workers)."""
+    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+
+
+def seed_int(text: str) -> int:
+    """argparse type: a seed, 0 .. 2^32 - 1."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a whole number, got '{text}'") from None
+    if not 0 <= value < 2**32:
+        raise argparse.ArgumentTypeError(f"a seed is between 0 and 2^32 - 1, got {value}")
+    return value
+
+
+def episodes_int(text: str) -> int:
+    """argparse type: a number of initial states, 1 .. MAX_EPISODES."""
+    value = positive_int(text)
+    if value > MAX_EPISODES:
+        raise argparse.ArgumentTypeError(f"at most {MAX_EPISODES:,} initial states, got {value:,}")
+    return value
+
+
+def check_workers(workers: int, force: bool) -> None:
+    """More processes than cores only slow every one of them down: refused unless forced."""
+    cores = available_cores()
+    if workers > cores and not force:
+        raise _UsageError(f"--workers {workers} is more than the {cores} cores available; "
+                          "pass --force-workers to insist")
+
+
 def positive_int(text: str) -> int:
     """argparse type: a whole number of at least 1, in plain words otherwise."""
     try:

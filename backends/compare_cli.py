@@ -7,7 +7,6 @@ finished runs are kept and running ones checkpointed: the same command continues
 from __future__ import annotations
 
 import argparse
-import os
 import sys
 import time
 from typing import Optional, TextIO
@@ -23,6 +22,8 @@ def _names(text: str) -> list[str]:
 
 
 def add_compare_arguments(p: argparse.ArgumentParser) -> None:
+    from asap_dsl.cli import episodes_int
+
     from .train_cli import _positive_int, _steps
 
     p.add_argument("files", nargs="+", metavar="FILE", help="the .asap specs")
@@ -33,16 +34,12 @@ def add_compare_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--seeds", type=_positive_int, default=3, help="seeds per configuration (default 3)")
     p.add_argument("--steps", type=_steps, help="environment steps per run (default: the preset's)")
     p.add_argument("--preset", default="default", help="default or paper")
-    p.add_argument("--episodes", type=_positive_int, default=1000, help="evaluation states (default 1000)")
+    p.add_argument("--episodes", type=episodes_int, default=1000, help="evaluation states (default 1000)")
     p.add_argument("--workers", type=_positive_int, help="training processes (default: the cores available)")
     p.add_argument("--force-workers", action="store_true", help="allow more workers than cores")
     p.add_argument("--ray", metavar="ADDRESS", help="run the trainings on a Ray cluster (an address, or 'auto')")
     p.add_argument("--out", default="reports/compare", help="the report and its runs (default reports/compare)")
     p.add_argument("--quiet", action="store_true", help="no progress display")
-
-
-def _cores() -> int:
-    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
 
 
 class SweepProgress:
@@ -98,6 +95,7 @@ class SweepProgress:
 
 def compare_command(args: argparse.Namespace, out: Optional[TextIO] = None, err: Optional[TextIO] = None) -> int:
     import asap_dsl
+    from asap_dsl.cli import available_cores, check_workers
 
     from .compare import compare
     from .presets import ALGORITHMS, PRESETS
@@ -115,10 +113,9 @@ def compare_command(args: argparse.Namespace, out: Optional[TextIO] = None, err:
         return fail(f"unknown algorithm '{bad[0]}'; choose from {', '.join(ALGORITHMS)}", 2)
     if args.preset not in PRESETS:
         return fail(f"unknown preset '{args.preset}'; choose {' or '.join(PRESETS)}", 2)
-    cores = _cores()
+    cores = available_cores()
     workers = args.workers or cores
-    if workers > cores and not args.force_workers:
-        return fail(f"--workers {workers} is more than the {cores} cores available; pass --force-workers to insist", 2)
+    check_workers(workers, args.force_workers)
     try:
         jobs = plan(args.files, args.tasks, args.rewards, args.algos, args.seeds, args.preset, args.steps)
         for j in jobs:  # every reward and setting checked before anything trains

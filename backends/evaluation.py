@@ -19,6 +19,7 @@ from typing import Any, Optional, Sequence, Union
 
 import numpy as np
 
+from asap_dsl.cli import MAX_EPISODES
 from asap_dsl.program import Program, loads, read_source
 from asap_dsl.rollout import Evaluator, RolloutResult
 from asap_dsl.runs import RunDir, RunError, atomic_write_json, spec_hash
@@ -30,7 +31,6 @@ from .sb3 import PolicyController, Scaling, load_model
 
 __all__ = ["Evaluation", "evaluate", "load_run", "summarise"]
 
-MAX_EPISODES = 1_000_000
 
 
 @dataclass

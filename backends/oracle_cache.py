@@ -83,7 +83,9 @@ def oracle_for(prog, task: str, seed: int, episodes: int, compute: bool = True,
     from .oracle import OracleUnsupported, run
 
     if workers is None:
-        workers = max(1, len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1))
+        from asap_dsl.cli import available_cores
+
+        workers = available_cores()
     try:
         report = run(prog, task, episodes=episodes, seed=seed, workers=workers)
     except OracleUnsupported:

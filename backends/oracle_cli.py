@@ -14,18 +14,19 @@ import json
 import sys
 from typing import Optional, TextIO
 
-from asap_dsl.cli import positive_int
+from asap_dsl.cli import episodes_int, positive_int, seed_int
 from asap_dsl.sampling import EVAL_SEED
 
 
 def add_oracle_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("file", metavar="FILE", help="the .asap spec (an ode or map system)")
     parser.add_argument("--task", default=None, help="the task (default: every task of the file)")
-    parser.add_argument("--episodes", type=positive_int, default=1000,
+    parser.add_argument("--episodes", type=episodes_int, default=1000,
                         help="initial states, the same as `asapc eval` draws (default 1000)")
     parser.add_argument("--workers", type=positive_int, default=1,
-                        help="processes, each solving a chunk of the states (default 1)")
-    parser.add_argument("--seed", type=int, default=EVAL_SEED,
+                        help="processes, each solving a chunk of the states (default 1; at most the cores)")
+    parser.add_argument("--force-workers", action="store_true", help="allow more workers than cores")
+    parser.add_argument("--seed", type=seed_int, default=EVAL_SEED,
                         help=f"seed of the initial states (default {EVAL_SEED}, as `asapc eval`)")
     parser.add_argument("--format", choices=("text", "json"), default="text", help="output format")
     parser.add_argument("--states", action="store_true",
@@ -83,6 +84,12 @@ def oracle_command(args: argparse.Namespace, out: Optional[TextIO] = None, err: 
 
     out = out or sys.stdout
     err = err or sys.stderr
+    from asap_dsl.cli import check_workers
+
+    check_workers(args.workers, getattr(args, "force_workers", False))
+    if args.task == "":
+        err.write("error: --task needs a task name (leave it out to solve every task)\n")
+        return 2
     try:
         prog = asap_dsl.load(args.file)
     except asap_dsl.SpecError as e:

@@ -13,16 +13,11 @@ import sys
 import time
 from typing import Optional, TextIO
 
+from asap_dsl.cli import episodes_int, positive_int as _positive_int, seed_int
 from asap_dsl.runs import json_safe
 from asap_dsl.sampling import EVAL_SEED
 
 __all__ = ["add_eval_arguments", "add_train_arguments", "eval_command", "train_command"]
-
-
-def _positive_int(text: str) -> int:
-    from asap_dsl.cli import positive_int
-
-    return positive_int(text)
 
 
 def _steps(text: str) -> int:
@@ -34,16 +29,6 @@ def _steps(text: str) -> int:
     if not value.is_integer() or value < 1 or value > 1e12:
         raise argparse.ArgumentTypeError(f"expected a whole number of steps between 1 and 1e12, got '{text}'")
     return int(value)
-
-
-def _seed(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a whole number, got '{text}'") from None
-    if not 0 <= value < 2**32:
-        raise argparse.ArgumentTypeError(f"a seed is between 0 and 2^32 - 1, got {value}")
-    return value
 
 
 def _minutes(text: str) -> float:
@@ -81,7 +66,7 @@ def add_train_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--algo", choices=ALGORITHMS, help="the algorithm (default: the task's train block, else sac)")
     p.add_argument("--reward", help="asap | rho | rho(window = D) | distance(...) (default: the task's reward)")
     p.add_argument("--steps", type=_steps, help="environment steps in all (default: train block, else the preset's)")
-    p.add_argument("--seed", type=_seed, help="the run's seed (default: train block, else 0)")
+    p.add_argument("--seed", type=seed_int, help="the run's seed (default: train block, else 0)")
     p.add_argument("--time-limit", type=_minutes, metavar="MINUTES",
                    help="end the run (as finished) after this much training time, whatever the steps")
     p.add_argument("--preset", choices=tuple(PRESETS), help="default (measured fastest here) or paper (as published)")
@@ -95,12 +80,12 @@ def add_train_arguments(p: argparse.ArgumentParser) -> None:
 
 def add_eval_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("run", metavar="RUN", help="a run directory written by `asapc train`")
-    p.add_argument("--episodes", type=_positive_int, default=1000, help="initial states (default 1000)")
+    p.add_argument("--episodes", type=episodes_int, default=1000, help="initial states (default 1000)")
     p.add_argument("--tolerances", type=_tolerances, help="comma-separated steps (default: the task's)")
-    p.add_argument("--seed", type=_seed, default=EVAL_SEED, help=f"seed of the initial states (default {EVAL_SEED})")
+    p.add_argument("--seed", type=seed_int, default=EVAL_SEED, help=f"seed of the initial states (default {EVAL_SEED})")
     p.add_argument("--spec", help="evaluate against this spec file (it must be the one the run was trained on)")
     p.add_argument("--no-oracle", action="store_true", help="do not compute the oracle's ceiling when it is not cached")
-    p.add_argument("--workers", type=_positive_int, help="processes for the oracle (default: the cores available)")
+    p.add_argument("--workers", type=_positive_int, help="processes for the oracle (default and at most: the cores)")
     p.add_argument("--format", choices=("text", "json"), default="text")
     p.add_argument("--states", action="store_true", help="with --format json: every state's steps and end reason")
 

@@ -173,3 +173,18 @@ def test_a_utf8_byte_order_mark_is_skipped(capsys, tmp_path):
     spec.write_bytes(b"\xef\xbb\xbf" + (ROOT / "examples" / "double_integrator.asap").read_bytes())
     code, out, _ = run(capsys, "lint", str(spec))
     assert code == 0, out
+
+
+@pytest.mark.parametrize("argv, words", [
+    (["--workers", "1000"], "more than the"),
+    (["--seed", "-1"], "a seed is between 0 and 2^32 - 1"),
+    (["--episodes", "1000000000"], "at most 1,000,000 initial states"),
+    (["--task", ""], "--task needs a task name"),
+])
+def test_oracle_flags_that_would_exhaust_the_machine_are_refused(capsys, argv, words):
+    try:
+        code = cli.main(["oracle", str(ROOT / "specs" / "dc_motor.asap"), *argv])
+    except SystemExit as e:
+        code = e.code
+    _, err = capsys.readouterr()
+    assert code == 2 and words in err and "Traceback" not in err
