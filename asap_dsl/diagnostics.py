@@ -59,6 +59,7 @@ RULES: dict[str, Rule] = {
         Rule("E119", "misplaced-declaration", "error", "A declaration in the wrong place (an integrator without an ODE, a bare `x = 1`, ...)."),
         Rule("E120", "cyclic-definition", "error", "A constant, let or formula defined in terms of itself."),
         Rule("E121", "not-constant", "error", "An expression that must be a constant but reads a state, action or let."),
+        Rule("E122", "init-not-sampleable", "error", "An `init` range (given, or the state space by default) that is infinite or too wide to draw states from uniformly."),
         Rule("W201", "regions-overlap", "warning", "The `asap` region overlaps the `avoid` region: the target is partly unsafe."),
         Rule("W202", "unused-name", "warning", "A constant, let, region or formula that nothing uses."),
         Rule("W203", "horizon-beyond-deadline", "warning", "A formula looks further into the past than the deadline allows any trace to be long."),

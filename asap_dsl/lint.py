@@ -48,6 +48,27 @@ class InitOutsideSpace(LintRule):
 
 
 @rule
+class InitNotSampleable(LintRule):
+    """Initial states are drawn uniformly from the init box: each side must be finite and its
+    width too (``uniform(-1e308, 1e308)`` overflows)."""
+
+    code = "E122"
+
+    def check(self, prog, out):
+        for s in prog.system.states:
+            lo, hi = s.init_low, s.init_high
+            if math.isfinite(lo) and math.isfinite(hi) and math.isfinite(hi - lo):
+                continue
+            if s.init_span is None:
+                out.add(self.code, f"initial states of '{s.name}' are drawn from its state space [{lo:g}, {hi:g}], "
+                        "which is not a finite range", s.span,
+                        hint=f"give '{s.name}' a finite init range: `state {s.name} in [...] init [lo, hi]`")
+            else:
+                out.add(self.code, f"the init range [{lo:g}, {hi:g}] of '{s.name}' cannot be sampled uniformly "
+                        "(it is infinite, or its width overflows)", s.init_span, hint="give a finite init range")
+
+
+@rule
 class ExactNeedsLinear(LintRule):
     code = "E111"
 

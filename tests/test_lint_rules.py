@@ -64,6 +64,8 @@ CASES = {
              edit("dt = 0.1", "dt = 0.1\n  let p = x + 1\n  let q = p * x", "asap in goal", "asap in goal and q > 0")),
     "E121": (edit("dt = 0.1", "dt = 0.1\n  const c = x + 1", "ball([1, 0], 0.5)", "ball([c, 0], 0.5)"), "x + 1", 0,
              edit("dt = 0.1", "dt = 0.1\n  const c = pi / 4", "ball([1, 0], 0.5)", "ball([c, 0], 0.5)")),
+    "E122": (edit("state x in [-5, 5]", "state x in [-inf, inf]"), "state x", 0,
+             edit("state x in [-5, 5]", "state x in [-inf, inf] init [-5, 5]")),
     "W201": (edit("ball([-1, 0], 0.2)", "ball([1.5, 0], 0.2)"), "avoid in unsafe", 0,
              edit("ball([-1, 0], 0.2)", "ball([1.75, 0], 0.2)")),
     "W202": (edit("dt = 0.1", "dt = 0.1\n  const k = 2"), "k =", 0,
@@ -152,6 +154,7 @@ MORE = [
     ("E119", edit("deadline 30", "deadline 30\n  deadline 20"), "deadline 20"),
     ("E120", edit("region unsafe", "formula f = f and in goal\nregion unsafe"), "f = f"),
     ("E121", edit("state y in [-5, 5]", "state y in [-5, x]"), "x]"),
+    ("E122", edit("state x in [-5, 5]", "state x in [-1e308, 1e308] init [-1e308, 1e308]"), "[-1e308, 1e308]\n"),
 ]
 
 
