@@ -48,6 +48,7 @@ class SweepProgress:
     def __init__(self, total: int, stream: TextIO = sys.stderr):
         self.total, self.stream = total, stream
         self.done = self.running = self.reused = 0
+        self.parallel = 1
         self.times: list[float] = []
         self.started: dict = {}
         self.t0 = time.perf_counter()
@@ -67,12 +68,13 @@ class SweepProgress:
         eta = ""
         if self.times:
             per = sum(self.times) / len(self.times)
-            eta = f", ETA {per * left / max(1, self.running or 1) / 60:.1f} min"
+            eta = f", ETA {per * left / self.parallel / 60:.1f} min"
         return f"{self.running} running, {self.reused} reused{eta}"
 
     def __call__(self, kind: str, job, result: Optional[dict]) -> None:
         if kind == "start":
             self.running += 1
+            self.parallel = max(self.parallel, self.running)  # how many run at once (the workers)
             self.started[job] = time.perf_counter()
         else:
             self.running -= 1
