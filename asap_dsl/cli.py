@@ -120,7 +120,7 @@ def show_data(prog: Program, only_task: Optional[str] = None) -> dict:
         "tasks": {},
     }
     for name in prog.tasks:
-        if only_task and name != only_task:
+        if only_task is not None and name != only_task:
             continue
         t = prog.model.tasks[name]
         lo, hi = t.rho_bounds
@@ -147,7 +147,7 @@ def show_data(prog: Program, only_task: Optional[str] = None) -> dict:
 
 def cmd_show(args: argparse.Namespace) -> int:
     prog = _load(args.file)
-    if args.task and args.task not in prog.tasks:
+    if args.task is not None and args.task not in prog.tasks:
         raise _UsageError(_unknown_task(args.task, prog))
     data = show_data(prog, args.task)
     if args.format == "json":

@@ -62,9 +62,9 @@ class _Core:
         self.task = program.task(task)  # KeyError with a suggestion on an unknown name
         tm = self.tm = self.task.model
         sysm = self.system = program.system
+        if isinstance(batch, bool) or not float(batch).is_integer() or batch < 1:
+            raise ValueError(f"num_envs must be a whole number, at least 1; got {batch!r}")
         self.B, self.n, self.autoreset = int(batch), sysm.n_state, autoreset
-        if self.B < 1:
-            raise ValueError(f"num_envs must be at least 1; got {batch}")
         self.reward = make_reward(tm, program.regions, self.n, self.B, reward, autoreset, failure_reward)
         self.sim = build_simulator(sysm, self.B, program.file)
         self.asap = FormulaTracker(tm.asap, self.B, self.n, autoreset=autoreset)

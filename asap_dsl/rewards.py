@@ -298,6 +298,8 @@ class Reward:
             floor = None
         if failure_reward is not None:
             floor = float(failure_reward)
+            if not math.isfinite(floor):
+                raise ValueError(f"failure_reward must be a finite number; got {failure_reward!r}")
         self.floor = floor if floor is not None and math.isfinite(floor) else None
 
     # The env calls these in step with the trackers of asap; ``value`` reads them.

@@ -188,3 +188,11 @@ def test_oracle_flags_that_would_exhaust_the_machine_are_refused(capsys, argv, w
         code = e.code
     _, err = capsys.readouterr()
     assert code == 2 and words in err and "Traceback" not in err
+
+
+def test_show_with_an_empty_task_name_is_an_error(capsys):
+    try:
+        code = cli.main(["show", str(ROOT / "specs" / "dc_motor.asap"), "--task", ""])
+    except SystemExit as e:
+        code = e.code
+    assert code == 2 and "no task named ''" in capsys.readouterr().err

@@ -259,3 +259,12 @@ def test_gymnasium_ids():
     assert obs.shape == (3,) and info["end_reason"] is None
     env = gymnasium.make("asap/swimmer-reach-v0")
     assert env.reset(seed=0)[0].shape == (10,)
+
+
+def test_fractional_env_counts_and_non_finite_failure_rewards_are_refused():
+    prog = asap_dsl.load(SPECS / "dc_motor.asap")
+    for bad in (2.5, 0, True):
+        with pytest.raises(ValueError, match="num_envs"):
+            asap_dsl.make_vec_env(prog, "reach", num_envs=bad)
+    with pytest.raises(ValueError, match="failure_reward"):
+        asap_dsl.make_env(prog, "reach", failure_reward=float("nan"))
