@@ -14,7 +14,7 @@ import sys
 from typing import Optional, Sequence
 
 from . import __version__
-from .diagnostics import Diagnostic, SpecError, format_diagnostic
+from .diagnostics import Diagnostic, SpecError, format_diagnostic, format_report, printable
 from .program import Program, analyse, loads, read_source
 from .runs import json_safe
 from .stl import ir
@@ -49,8 +49,8 @@ def cmd_lint(args: argparse.Namespace) -> int:
         print(json.dumps({"files": args.files, "errors": errors, "warnings": warnings,
                           "diagnostics": [d.as_dict() for d in all_diags]}, indent=2))
     else:
-        for d in all_diags:
-            print(format_diagnostic(d, sources.get(d.file)))
+        if all_diags:
+            print(format_report(all_diags, sources))
         n = len(args.files)
         print(f"{n} file{'s' if n != 1 else ''} checked: {errors} error{'s' if errors != 1 else ''}, "
               f"{warnings} warning{'s' if warnings != 1 else ''}")
@@ -193,7 +193,7 @@ def cmd_show(args: argparse.Namespace) -> int:
     for w in prog.warnings:
         out.append("")
         out.append(format_diagnostic(w, prog.source))
-    print("\n".join(out))
+    print("\n".join(printable(line) for line in "\n".join(out).split("\n")))  # names may hold ESC bytes
     return 0
 
 

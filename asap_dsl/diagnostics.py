@@ -136,28 +136,49 @@ def sort(diagnostics: Iterable[Diagnostic]) -> list[Diagnostic]:
     return sorted(unique, key=lambda d: (d.file, d.line, d.column, d.code, d.message))
 
 
-def format_diagnostic(d: Diagnostic, source: Optional[str]) -> str:
-    """``file:line:col: error E101 unknown-name: message``, then the line and a caret."""
+_CONTROL = {c: f"\\x{c:02x}" for c in list(range(0x20)) + [0x7f] if c != 0x09}
+_CONTROL.update({c: f"\\u{c:04x}" for c in range(0x80, 0xa0)})
+EXCERPT = 200  # characters of a source line shown around the problem
+
+
+def printable(text: str) -> str:
+    """``text`` safe for a terminal: control characters (ESC, BEL, ...) as visible escapes."""
+    return text.translate(_CONTROL)
+
+
+def format_diagnostic(d: Diagnostic, source: Optional[str], lines: Optional[list[str]] = None) -> str:
+    """``file:line:col: error E101 unknown-name: message``, then the line and a caret.
+
+    ``lines`` are ``source.splitlines()`` when the caller formats many diagnostics of one file
+    (split once, not once per diagnostic). Control characters are shown escaped, and a long line
+    is cut to :data:`EXCERPT` characters around the problem.
+    """
     where = f"{d.file}:{d.line}:{d.column}" if d.line >= 1 else d.file  # line 0: the file as a whole
-    head = f"{where}: {d.severity} {d.code} {d.name}: {d.message}"
-    lines = [head]
+    out = [printable(f"{where}: {d.severity} {d.code} {d.name}: {d.message}")]
     if source is not None and d.line >= 1:
-        text_lines = source.splitlines()
+        text_lines = lines if lines is not None else source.splitlines()
         if d.line <= len(text_lines):
             text = text_lines[d.line - 1].expandtabs(1)
             width = 1
             if d.end_line == d.line and d.end_column > d.column:
                 width = d.end_column - d.column
             width = max(1, min(width, len(text) - d.column + 1))
-            lines.append(f"  {d.line:>4} | {text}")
-            lines.append(f"       | {' ' * (d.column - 1)}{'^' * width}")
+            start = max(0, min(d.column - 1 - EXCERPT // 2, len(text) - EXCERPT))
+            cut = text[start:start + EXCERPT]
+            before = printable(text[start:d.column - 1])
+            marked = printable(text[d.column - 1:d.column - 1 + width])[: max(1, EXCERPT - len(before))]
+            left = "…" if start > 0 else ""
+            right = "…" if start + EXCERPT < len(text) else ""
+            out.append(f"  {d.line:>4} | {left}{printable(cut)}{right}")
+            out.append(f"       | {' ' * (len(left) + len(before))}{'^' * max(1, len(marked))}")
     if d.hint:
-        lines.append(f"       = hint: {d.hint}")
-    return "\n".join(lines)
+        out.append(printable(f"       = hint: {d.hint}"))
+    return "\n".join(out)
 
 
 def format_report(diagnostics: Iterable[Diagnostic], sources: dict[str, Optional[str]]) -> str:
-    return "\n".join(format_diagnostic(d, sources.get(d.file)) for d in diagnostics)
+    split = {f: (s.splitlines() if s is not None else None) for f, s in sources.items()}
+    return "\n".join(format_diagnostic(d, sources.get(d.file), split.get(d.file)) for d in diagnostics)
 
 
 class SpecError(Exception):

@@ -196,3 +196,20 @@ def test_show_with_an_empty_task_name_is_an_error(capsys):
     except SystemExit as e:
         code = e.code
     assert code == 2 and "no task named ''" in capsys.readouterr().err
+
+
+def test_control_characters_and_huge_lines_never_reach_the_terminal_raw(capsys, tmp_path):
+    spec = tmp_path / "esc.asap"
+    src = (ROOT / "examples" / "double_integrator.asap").read_text()
+    # an unknown region whose name line also holds a terminal escape in a comment, and a 2 MB line
+    src = src.replace("asap       in home and stopped", "asap       in hom\x1b[2J and stopped  # \x1b]0;pwned\x07")
+    src += "# " + "x" * 2_000_000 + " ¤\n" + "region wide = ball([0, 0], 1) " + "+" * 10 + "\n"
+    spec.write_text(src)
+    code, out, _ = run(capsys, "lint", str(spec))
+    assert code == 1
+    assert "\x1b" not in out and "\x07" not in out and "\\x1b" in out
+    assert len(out) < 20_000  # excerpts are cut around the problem
+    for line in out.splitlines():
+        assert len(line) < 400
+    code, out, _ = run(capsys, "show", str(ROOT / "examples" / "double_integrator.asap"))
+    assert code == 0 and "\x1b" not in out
