@@ -187,6 +187,7 @@ def test_factory_with_batch_argument(user_path):
     ("user_sims:wrong_dims", r"state_dim is 3 but the system declares 2"),
     ("user_sims:wrong_shape", r"step returned shape \(1, 3\); expected \(1, 2\)"),
     ("user_sims:raises_in_step", r"step raised RuntimeError: solver diverged"),
+    ("sys:exit", r"factory raised SystemExit"),  # would end the process silently with status 0
 ])
 def test_broken_factory_names_the_spec_line(user_path, target, message):
     prog = user_prog(target)

@@ -32,6 +32,11 @@ __all__ = ["SimulatorError", "CheckedSimulator", "OdeSimulator", "build_simulato
            "registered_simulators"]
 
 
+# A factory or simulator is the user's trusted code, but whatever it raises — sys.exit() included,
+# which `except Exception` would let end the process silently with status 0 — is reported.
+_USER_FAILURES = (Exception, SystemExit)
+
+
 class SimulatorError(RuntimeError):
     """A simulator could not be built or misbehaved; the message names the spec line."""
 
@@ -143,7 +148,7 @@ class CheckedSimulator:
                 out = self.inner.reset(states)
         except SimulatorError:
             raise
-        except Exception as err:  # noqa: BLE001 — the user's code: report where it is declared
+        except _USER_FAILURES as err:  # noqa: BLE001 — the user's code: report where it is declared
             raise self._fail(f"reset raised {type(err).__name__}: {err}") from err
         return self._check_out(out, "reset")
 
@@ -154,7 +159,7 @@ class CheckedSimulator:
                 out = self.inner.step(a)
         except SimulatorError:
             raise
-        except Exception as err:  # noqa: BLE001
+        except _USER_FAILURES as err:  # noqa: BLE001
             raise self._fail(f"step raised {type(err).__name__}: {err}") from err
         return self._check_out(out, "step")
 
@@ -177,7 +182,7 @@ def build_simulator(system: SystemModel, batch: int = 1, file: Optional[str] = N
     if target in _REGISTRY:
         try:
             inner = _REGISTRY[target](batch=batch)
-        except Exception as err:  # noqa: BLE001
+        except _USER_FAILURES as err:  # noqa: BLE001
             raise SimulatorError(f"{where}: simulator \"{target}\" could not be built: {type(err).__name__}: {err}") from err
         return CheckedSimulator(inner, system, batch, file)
     if ":" not in target:
@@ -187,7 +192,7 @@ def build_simulator(system: SystemModel, batch: int = 1, file: Optional[str] = N
     module_name, attr = target.split(":", 1)
     try:
         module = importlib.import_module(module_name)
-    except Exception as err:  # noqa: BLE001 — ImportError, or the module's own errors
+    except _USER_FAILURES as err:  # noqa: BLE001 — ImportError, or the module's own errors
         raise SimulatorError(f"{where}: simulator \"{target}\": cannot import module '{module_name}': "
                              f"{type(err).__name__}: {err}") from err
     factory: Any = module
@@ -200,6 +205,6 @@ def build_simulator(system: SystemModel, batch: int = 1, file: Optional[str] = N
                              "simulator is expected)")
     try:
         inner = _call_factory(factory, batch)
-    except Exception as err:  # noqa: BLE001
+    except _USER_FAILURES as err:  # noqa: BLE001
         raise SimulatorError(f"{where}: simulator \"{target}\": the factory raised {type(err).__name__}: {err}") from err
     return CheckedSimulator(inner, system, batch, file, user=True)
