@@ -163,8 +163,14 @@ def _missing(kind: str, name: str, known: tuple[str, ...]) -> str:
     return f"no {kind} named '{name}'{tail}"
 
 
+def normalise_newlines(text: str) -> str:
+    """``\\r\\n`` and a lone ``\\r`` become ``\\n``, so that line numbers are the ones an editor shows."""
+    return text.replace("\r\n", "\n").replace("\r", "\n") if "\r" in text else text
+
+
 def analyse(text: str, name: str = "<string>") -> tuple[Optional[ProgramModel], list[Diagnostic]]:
     """Parse, check and lint; return the model (None on errors) and every diagnostic, sorted."""
+    text = normalise_newlines(text)
     module, structural = parser.parse(text, name)
     diag = Collector(name, list(structural))
     model = checker.check(module, text, diag)
@@ -177,6 +183,7 @@ def analyse(text: str, name: str = "<string>") -> tuple[Optional[ProgramModel], 
 
 def loads(text: str, name: str = "<string>") -> Program:
     """Check a spec given as text; raise :class:`SpecError` with every error if it has any."""
+    text = normalise_newlines(text)
     model, diagnostics = analyse(text, name)
     if model is None:
         raise SpecError(diagnostics, text)
@@ -236,7 +243,7 @@ def read_source(path: Union[str, os.PathLike], max_bytes: Optional[int] = None) 
     if data.startswith(b"\xef\xbb\xbf"):  # a BOM that some editors write: not part of the text
         data = data[3:]
     try:
-        text = data.decode("utf-8")
+        text = normalise_newlines(data.decode("utf-8"))
     except UnicodeDecodeError as err:
         line = data[: err.start].count(b"\n") + 1
         col = err.start - (data.rfind(b"\n", 0, err.start) + 1) + 1

@@ -20,6 +20,7 @@ from typing import Any, Optional, Sequence, Union
 import numpy as np
 
 from asap_dsl.cli import MAX_EPISODES
+from asap_dsl.diagnostics import SpecError
 from asap_dsl.program import Program, loads, read_source
 from asap_dsl.rollout import Evaluator, RolloutResult
 from asap_dsl.runs import RunDir, RunError, atomic_write_json, spec_hash
@@ -175,8 +176,8 @@ def load_run(path: Union[str, Path], spec: Union[str, Path, None] = None) -> Loa
         original = Path(manifest.get("spec_file", ""))
         if original.is_file():
             try:
-                current = original.read_text(encoding="utf-8")
-            except (OSError, UnicodeDecodeError):
+                current = read_source(original)
+            except SpecError:
                 current = None
             if current is not None and spec_hash(current) != trained:
                 raise RunError(f"{original} has changed since {run.path} was trained on it; retrain, or evaluate "

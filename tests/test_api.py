@@ -205,3 +205,15 @@ def test_formula_monitor_matches_offline():
     mon = f.monitor(batch=2)
     online = np.stack([mon.update(trace[:, k]) for k in range(12)], axis=1)
     np.testing.assert_allclose(online, offline)
+
+
+@pytest.mark.parametrize("newline", ["\r\n", "\r"])
+def test_positions_are_right_with_windows_and_old_mac_line_endings(tmp_path, newline):
+    src = "\n".join(["system S0 {", "  state x in [-1, 1]", "  action u in [-1, 1]", "  dt = 0.1",
+                     "  ode { x' = u }", "}", "task t {", "  asap x > zz", "  deadline 10", "}", ""])
+    p = tmp_path / "crlf.asap"
+    p.write_bytes(src.replace("\n", newline).encode())
+    with pytest.raises(asap_dsl.SpecError) as err:
+        asap_dsl.load(p)
+    d = [d for d in err.value.diagnostics if d.code == "E101"][0]
+    assert (d.line, d.column) == (8, 12)
