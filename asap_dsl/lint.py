@@ -236,9 +236,15 @@ class UnboundedRobustness(LintRule):
 
 
 def lint(prog: ProgramModel, out: Collector, rules: Optional[list[type[LintRule]]] = None) -> None:
-    """Run every lint rule (or the given ones) on a checked program."""
-    for cls in rules or LINT_RULES:
-        cls().check(prog, out)
+    """Run every lint rule (or the given ones) on a checked program.
+
+    Geometry with extreme numbers (a centre at 1e308) overflows to inf, which the rules read as
+    "far" or "unbounded"; numpy's warnings about it are not the user's business."""
+    import numpy as np
+
+    with np.errstate(all="ignore"):
+        for cls in rules or LINT_RULES:
+            cls().check(prog, out)
 
 
 __all__ = ["LintRule", "LINT_RULES", "lint", "regions_overlap"]

@@ -171,3 +171,12 @@ def test_docs_list_every_rule():
     for code, rule in RULES.items():
         row = re.search(rf"^\|\s*`?{code}`?\s*\|\s*`?{rule.name}`?\s*\|\s*{rule.severity}\s*\|", text, re.M)
         assert row, f"{code} {rule.name} is not in the rule table of docs/language.md"
+
+
+def test_extreme_centres_give_diagnostics_not_numpy_warnings():
+    import warnings
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        got = codes(edit("ball([1, 0], 0.5)", "ball([1e308, 0], 0.5)"))
+    assert "E113" in got  # the goal lies far outside the state space
