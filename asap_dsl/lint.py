@@ -69,6 +69,47 @@ class InitNotSampleable(LintRule):
 
 
 @rule
+class TaskNeedsAction(LintRule):
+    """A task is something to control: without an action there is no policy to train or oracle
+    to solve (a spec of formulas only, to monitor traces, needs none)."""
+
+    code = "E114"
+
+    def check(self, prog, out):
+        if prog.tasks and not prog.system.actions:
+            first = next(iter(prog.tasks.values()))
+            out.add(self.code, f"system '{prog.system.name}' declares no action, so task '{first.name}' has nothing "
+                    "to control", prog.system.span, hint="declare one: `action u in [lo, hi]`")
+
+
+@rule
+class InitInsideAvoid(LintRule):
+    """Episodes start from states drawn in the init box and redrawn while ``avoid`` holds: if it
+    holds on all of a sample of the box, no episode can start (training, evaluation, the oracle)."""
+
+    code = "E123"
+    SAMPLES = 512
+
+    def check(self, prog, out):
+        import numpy as np
+
+        from .stl import offline
+
+        sys_ = prog.system
+        lo, hi = sys_.init_low, sys_.init_high
+        if not (np.all(np.isfinite(lo)) and np.all(np.isfinite(hi)) and np.all(np.isfinite(hi - lo))):
+            return  # E122 says so
+        states = np.random.default_rng(0).uniform(lo, hi, size=(self.SAMPLES, sys_.n_state))
+        for t in prog.tasks.values():
+            if t.avoid is None:
+                continue
+            if offline.satisfied(t.avoid, states[:, None, :])[:, 0].all():
+                out.add(self.code, f"`avoid` of task '{t.name}' holds at every one of {self.SAMPLES} initial states "
+                        "drawn from the init box: no episode can start", t.clause_spans["avoid"],
+                        hint="shrink the init box, or the regions of `avoid`")
+
+
+@rule
 class ExactNeedsLinear(LintRule):
     code = "E111"
 

@@ -207,7 +207,7 @@ def test_integrator_settings():
 
 
 def test_distance_reward_needs_a_region_in_asap():
-    base = "system A { state x in [-1, 1]  dt = 1  map { x = x } }\nregion g = ball([0], 0.5)\n"
+    base = "system A { state x in [-1, 1]  action u in [-1, 1]  dt = 1  map { x = x + u } }\nregion g = ball([0], 0.5)\n"
     asap_dsl.loads(base + "task t { asap in g and x > 0  deadline 3  reward distance(lambda_t = 2) }")
     with pytest.raises(asap_dsl.SpecError) as info:
         asap_dsl.loads(base + "task t { asap x > 0.5  deadline 3  reward distance }")

@@ -140,7 +140,7 @@ def test_lint_deep_warns_when_the_deadline_is_infeasible(capsys, tmp_path, init,
 
 def test_show_json_is_strict_json_with_unbounded_values(capsys, tmp_path):
     spec = tmp_path / "free.asap"
-    spec.write_text("system A { state x in [-1e300, 1e300]  dt = 1  map { x = x } }\n"
+    spec.write_text("system A { state x in [-1e300, 1e300]  action u in [-1, 1]  dt = 1  map { x = x + u } }\n"
                     "formula up = once x > 0\nregion g = ball([0], 1)\ntask t { asap in g  deadline 3 }")
     code, out, _ = run(capsys, "show", "--format", "json", str(spec))
     assert code == 0

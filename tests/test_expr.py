@@ -179,6 +179,6 @@ def test_interval_power_saturates_instead_of_overflowing():
 
     assert Interval(-1e300, 1e300) ** 2 == Interval(0.0, float("inf"))
     assert Interval(-1e300, 2.0) ** 3 == Interval(float("-inf"), 8.0)
-    prog = asap_dsl.loads("system A { state x in [-1e300, 1e300]  dt = 1  map { x = x } }\n"
+    prog = asap_dsl.loads("system A { state x in [-1e300, 1e300]  action u in [-1, 1]  dt = 1  map { x = x + u } }\n"
                           "region g = ball([0], 1)\ntask t { asap in g  deadline 3 }")
     assert prog.task("t").rho_bounds == (float("-inf"), 1.0)

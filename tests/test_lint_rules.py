@@ -66,6 +66,8 @@ CASES = {
              edit("dt = 0.1", "dt = 0.1\n  const c = pi / 4", "ball([1, 0], 0.5)", "ball([c, 0], 0.5)")),
     "E122": (edit("state x in [-5, 5]", "state x in [-inf, inf]"), "state x", 0,
              edit("state x in [-5, 5]", "state x in [-inf, inf] init [-5, 5]")),
+    "E123": (edit("ball([-1, 0], 0.2)", "box(y in [-5, 5])"), "avoid in unsafe", 0,
+             edit("ball([-1, 0], 0.2)", "box(y in [-5, 0])")),
     "W201": (edit("ball([-1, 0], 0.2)", "ball([1.5, 0], 0.2)"), "avoid in unsafe", 0,
              edit("ball([-1, 0], 0.2)", "ball([1.75, 0], 0.2)")),
     "W202": (edit("dt = 0.1", "dt = 0.1\n  const k = 2"), "k =", 0,
@@ -145,6 +147,8 @@ MORE = [
     ("E112", edit("deadline 30", "deadline 30\n  episode 10..40"), "episode"),
     ("E114", "system Empty { state x in [0, 1] }", "Empty"),
     ("E114", "region goal = ball([1], 0.5)", None),
+    ("E114", "system Drift {\n  state x in [0, 1]\n  dt = 0.1\n  ode { x' = -x }\n}\nregion g = ball([0.5], 0.1)\n"
+             "task t {\n  asap in g\n  deadline 5\n}\n", "system Drift"),
     ("E116", edit("y' = u", "y' = u + in goal"), "in goal"),
     ("E117", edit("ball([1, 0], 0.5)", "ball([1, 0], -0.5)"), "-0.5"),
     ("E117", edit("deadline 30", "deadline 30\n  reward rhoo"), "reward"),
