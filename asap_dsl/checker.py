@@ -34,6 +34,7 @@ TRAIN_SETTINGS = {
     "vf_coef": "float", "max_grad_norm": "float", "eval_episodes": "int",
 }
 OBSERVE_ITEMS = ("state", "time")
+MAX_SUBSTEPS = 1000  # integrator substeps per step
 _MAX_STEPS = 1e9  # a time of more steps than this is a typo, not an episode
 _FUTURE_TO_PAST = {"always": "historically", "eventually": "once", "until": "since"}
 
@@ -588,6 +589,10 @@ class Checker:
                 continue
             if not float(v).is_integer() or v < 1:
                 self.d.add("E117", "substeps must be a whole number of at least 1", s.span)
+                continue
+            if v > MAX_SUBSTEPS:  # every step of every environment would take that many evaluations
+                self.d.add("E117", f"substeps = {_fmt(v)} is more than {MAX_SUBSTEPS:,}", s.span,
+                           hint="a smaller dt, or a few substeps, integrates as accurately at a fraction of the cost")
                 continue
             substeps = int(v)
         return Integrator(decl.method, substeps if decl.method != "exact" else 1, decl.span)

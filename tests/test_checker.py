@@ -230,3 +230,13 @@ def test_degenerate_numbers_are_diagnostics_not_crashes(text, code):
     with pytest.raises(asap_dsl.SpecError) as info:
         asap_dsl.loads(text)
     assert code in [d.code for d in info.value.diagnostics]
+
+
+def test_integrator_substeps_are_bounded():
+    src = ("system A { state x in [0, 1]  action u in [-1, 1]  dt = 0.1  integrator rk4(substeps = 1e9)  ode { x' = u } }\n"
+           "region g = ball([0.5], 0.1)\ntask t { asap in g  deadline 3 }")
+    with pytest.raises(asap_dsl.SpecError) as info:
+        asap_dsl.loads(src)
+    (d,) = [d for d in info.value.diagnostics if d.code == "E117"]
+    assert "more than 1,000" in d.message
+    asap_dsl.loads(src.replace("1e9", "1000"))
