@@ -35,6 +35,7 @@ TRAIN_SETTINGS = {
 }
 OBSERVE_ITEMS = ("state", "time")
 MAX_SUBSTEPS = 1000  # integrator substeps per step
+MAX_DEADLINE = 1_000_000  # steps of the longest episode
 _MAX_STEPS = 1e9  # a time of more steps than this is a typo, not an episode
 _FUTURE_TO_PAST = {"always": "historically", "eventually": "once", "until": "since"}
 
@@ -731,6 +732,12 @@ class Checker:
         asap = attempt(self.condition, clauses["asap"].value, "asap") if "asap" in clauses else None
         avoid = attempt(self.condition, clauses["avoid"].value, "avoid") if "avoid" in clauses else None
         deadline = attempt(self.positive_steps, clauses["deadline"].value, "the deadline") if "deadline" in clauses else None
+        if deadline is not None and deadline > MAX_DEADLINE:
+            # Every episode, evaluation and oracle horizon is this long: beyond it nothing finishes.
+            self.d.add("E117", f"a deadline of {deadline:,} steps is more than {MAX_DEADLINE:,}", clauses["deadline"].span,
+                       hint="a larger dt makes the same time fewer steps")
+            errors += 1
+            deadline = None
         tolerances: tuple[int, ...] = (deadline,) if deadline else ()
         if "tolerances" in clauses:
             tolerances = tuple(attempt(self.positive_steps, d, "a tolerance", default=0) for d in clauses["tolerances"].value)

@@ -67,8 +67,13 @@ class _Core:
         self.B, self.n, self.autoreset = int(batch), sysm.n_state, autoreset
         self.reward = make_reward(tm, program.regions, self.n, self.B, reward, autoreset, failure_reward)
         self.sim = build_simulator(sysm, self.B, program.file)
-        self.asap = FormulaTracker(tm.asap, self.B, self.n, autoreset=autoreset)
-        self.avoid = FormulaTracker(tm.avoid, self.B, self.n, autoreset=autoreset) if tm.avoid is not None else None
+        # No episode (training: at most kmax steps; evaluation: the deadline) is longer than the
+        # deadline: windows beyond it are capped, so monitors never hold more than an episode.
+        from .stl.ir import cap_past_windows
+
+        self.asap = FormulaTracker(cap_past_windows(tm.asap, tm.deadline), self.B, self.n, autoreset=autoreset)
+        self.avoid = (FormulaTracker(cap_past_windows(tm.avoid, tm.deadline), self.B, self.n, autoreset=autoreset)
+                      if tm.avoid is not None else None)
         trackers = [self.asap] + ([self.avoid] if self.avoid else []) + self.reward.trackers
         self.trackers = trackers
         # Stepped after ``done`` is known (which needs ``avoid`` only): with autoreset, these step and

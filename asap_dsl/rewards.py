@@ -274,11 +274,12 @@ class Reward:
             window = model.params.get("window")
             if window is None:
                 node = task.spec
-            else:
-                iv = ir.Interval(0, int(window) - 1)
+            else:  # a window longer than any episode is the whole episode (and needs no more memory)
+                iv = ir.Interval(0, min(int(window), task.deadline + 1) - 1)
                 node = ir.Once(iv, task.asap)
                 if task.avoid is not None:
                     node = ir.And(node, ir.Historically(iv, ir.Not(task.avoid)))
+            node = ir.cap_past_windows(node, task.deadline)  # past windows inside asap/avoid too
             self.node = node
             self.bounds = formula_bounds(node)
             self.tracker = FormulaTracker(node, batch, n_state, satisfaction=False, autoreset=autoreset)

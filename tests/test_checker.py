@@ -240,3 +240,12 @@ def test_integrator_substeps_are_bounded():
     (d,) = [d for d in info.value.diagnostics if d.code == "E117"]
     assert "more than 1,000" in d.message
     asap_dsl.loads(src.replace("1e9", "1000"))
+
+
+def test_deadlines_are_bounded():
+    src = ("system A { state x in [0, 1]  action u in [-1, 1]  dt = 0.1  ode { x' = u } }\n"
+           "region g = ball([0.5], 0.1)\ntask t { asap once[0, 1000000000] in g  deadline 1000000000 }")
+    with pytest.raises(asap_dsl.SpecError) as info:
+        asap_dsl.loads(src)
+    assert any(d.code == "E117" and "more than 1,000,000" in d.message for d in info.value.diagnostics)
+    asap_dsl.loads(src.replace("deadline 1000000000", "deadline 1000000"))

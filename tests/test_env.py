@@ -268,3 +268,41 @@ def test_fractional_env_counts_and_non_finite_failure_rewards_are_refused():
             asap_dsl.make_vec_env(prog, "reach", num_envs=bad)
     with pytest.raises(ValueError, match="failure_reward"):
         asap_dsl.make_env(prog, "reach", failure_reward=float("nan"))
+
+
+def test_windows_longer_than_any_episode_cost_no_memory():
+    """`once[0, 1e8]` with a deadline of 30 steps: the monitor holds an episode, not 1e8 steps."""
+    import tracemalloc
+
+    text = (SPECS / "dc_motor.asap").read_text().replace(
+        "task reach {\n  asap       in goal", "task reach {\n  asap       once[0, 100000000] in goal", 1)
+    text = text.replace("task reach_avoid {\n  asap       in goal\n  avoid      in unsafe",
+                        "task reach_avoid {\n  asap       in goal\n  avoid      historically[0, 100000000] in unsafe\n"
+                        "  reward     rho(window = 100000000)", 1)
+    prog = asap_dsl.loads(text, "dc_motor.asap")
+    tracemalloc.start()
+    for task in ("reach", "reach_avoid"):
+        venv = asap_dsl.make_vec_env(prog, task, num_envs=16, seed=0)
+        venv.reset()
+        for _ in range(40):
+            _, r, _, _ = venv.step_arrays(np.zeros((16, 1)))
+            assert np.isfinite(r).all()
+    _, peak = tracemalloc.get_traced_memory()
+    tracemalloc.stop()
+    assert peak < 50e6, peak
+
+
+def test_capping_past_windows_is_exact_on_episode_length_traces():
+    from asap_dsl.stl import ir, offline
+
+    prog = asap_dsl.load(SPECS / "dc_motor.asap")
+    goal = prog.task("reach").model.asap
+    formulas = [ir.Once(ir.Interval(0, 10**8), goal), ir.Historically(ir.Interval(2, 10**8), ir.Not(goal)),
+                ir.Once(ir.Interval(40, 50), goal), ir.Since(ir.Interval(1, 10**7), ir.Not(goal), goal),
+                ir.Historically(ir.Interval(0, 5), ir.Once(ir.Interval(3, 10**6), goal))]
+    rng = np.random.default_rng(1)
+    traces = rng.uniform([0.5, -2, -2], [2.5, 2, 2], size=(64, 31, 3))
+    for f in formulas:
+        capped = ir.cap_past_windows(f, 30)
+        assert np.array_equal(offline.robustness(f, traces, n_state=3), offline.robustness(capped, traces, n_state=3))
+        assert np.array_equal(offline.satisfied(f, traces, n_state=3), offline.satisfied(capped, traces, n_state=3))

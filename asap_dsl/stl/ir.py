@@ -199,3 +199,27 @@ def to_text(node: Formula) -> str:
 def _wrap(node: Formula) -> str:
     text = to_text(node)
     return text if isinstance(node, (Atom, Const)) else f"({text})"
+
+
+def cap_past_windows(node: Formula, steps: int) -> Formula:
+    """The same formula for traces of at most ``steps + 1`` samples (t = 0 .. steps), with no past
+    window longer than they can be: ``[a, b]`` with ``b > steps`` becomes ``[a, inf)`` (both reach
+    back to t = 0), and a window that starts before t = 0 at every t (``a > steps``) is always
+    empty, a constant. Exact on such traces, and online monitors then need memory in proportion to
+    the episode, never to a window written as 1e9 steps.
+    """
+    if isinstance(node, (Atom, Const)):
+        return node
+    if isinstance(node, Not):
+        return Not(cap_past_windows(node.arg, steps))
+    if isinstance(node, (And, Or, Implies)):
+        return type(node)(cap_past_windows(node.left, steps), cap_past_windows(node.right, steps))
+    iv = node.interval
+    if isinstance(node, PAST_OPERATORS):
+        if iv.lo > steps:  # empty window: once/since never hold, historically always does
+            return Const(isinstance(node, Historically))
+        if iv.hi is not None and iv.hi > steps:
+            iv = Interval(iv.lo, None)
+    if isinstance(node, UNARY_TEMPORAL):
+        return type(node)(iv, cap_past_windows(node.arg, steps))
+    return type(node)(iv, cap_past_windows(node.left, steps), cap_past_windows(node.right, steps))
