@@ -372,8 +372,18 @@ class Checker:
         return [(s.low, s.high) for s in self.states]
 
     def region_bounds(self, region: RegionModel) -> tuple[float, float]:
-        symbols = self.symbols()
-        coords = [interval_range(ast.Name(c, Span()), symbols, self.state_box()) for c in region.coords]
+        # A state's interval is its space (looked up, so that a ball over n states costs O(n));
+        # a let's comes from interval analysis over the state box (built once).
+        spaces = {s.name: Interval(s.low, s.high) for s in self.states}
+        box = symbols = None
+        coords = []
+        for c in region.coords:
+            if c in spaces:
+                coords.append(spaces[c])
+                continue
+            if box is None:
+                symbols, box = self.symbols(), self.state_box()
+            coords.append(interval_range(ast.Name(c, Span()), symbols, box))
         if region.kind == "ball":
             dist = Interval(0.0, 0.0)
             for iv, c in zip(coords, region.centre):
