@@ -91,8 +91,6 @@ class InitInsideAvoid(LintRule):
     SAMPLES = 512
 
     def check(self, prog, out):
-        import numpy as np
-
         from .stl import offline
 
         sys_ = prog.system
@@ -184,23 +182,30 @@ class GoalOutsideSpace(LintRule):
                             t.clause_spans["asap"], hint="those goal states end the episode as out of bounds")
 
 
+def _box_over(box: RegionModel, coords: list[str]) -> tuple[np.ndarray, np.ndarray]:
+    """A box's sides over ``coords``; a coordinate it does not name is free (-inf, inf)."""
+    lo = np.array([box.low[box.coords.index(c)] if c in box.coords else -np.inf for c in coords])
+    hi = np.array([box.high[box.coords.index(c)] if c in box.coords else np.inf for c in coords])
+    return lo, hi
+
+
 def regions_overlap(a: RegionModel, b: RegionModel) -> Optional[bool]:
-    """Whether two regions share a point (None when their coordinates differ)."""
-    if set(a.coords) != set(b.coords):
-        return None
-    order = list(a.coords)
-
-    def arr(region, values):
-        return np.array([values[region.coords.index(c)] for c in order])
-
+    """Whether two regions share a point; None when it cannot be decided here (two balls over
+    different coordinates, or a box naming a coordinate its ball does not)."""
+    if a.kind == "box" and b.kind == "box":  # free coordinates always meet
+        order = sorted(set(a.coords) | set(b.coords))
+        (alo, ahi), (blo, bhi) = _box_over(a, order), _box_over(b, order)
+        return bool(np.all(alo <= bhi) and np.all(blo <= ahi))
     if a.kind == "ball" and b.kind == "ball":
-        return float(np.linalg.norm(np.asarray(a.centre) - arr(b, b.centre))) <= a.radius + b.radius
-    if a.kind == "box" and b.kind == "box":
-        return bool(np.all(np.asarray(a.low) <= arr(b, b.high)) and np.all(arr(b, b.low) <= np.asarray(a.high)))
+        if set(a.coords) != set(b.coords):
+            return None
+        other = np.array([b.centre[b.coords.index(c)] for c in a.coords])
+        return float(np.linalg.norm(np.asarray(a.centre) - other)) <= a.radius + b.radius
     ball, box = (a, b) if a.kind == "ball" else (b, a)
-    c = arr(ball, ball.centre) if ball is b else np.asarray(ball.centre)
-    lo = np.asarray(box.low) if box is a else arr(box, box.low)
-    hi = np.asarray(box.high) if box is a else arr(box, box.high)
+    if not set(box.coords) <= set(ball.coords):
+        return None
+    c = np.asarray(ball.centre, dtype=float)
+    lo, hi = _box_over(box, list(ball.coords))
     return float(np.linalg.norm(c - np.clip(c, lo, hi))) <= ball.radius
 
 

@@ -159,6 +159,8 @@ MORE = [
     ("E120", edit("region unsafe", "formula f = f and in goal\nregion unsafe"), "f = f"),
     ("E121", edit("state y in [-5, 5]", "state y in [-5, x]"), "x]"),
     ("E122", edit("state x in [-5, 5]", "state x in [-1e308, 1e308] init [-1e308, 1e308]"), "[-1e308, 1e308]\n"),
+    ("W201", edit("ball([-1, 0], 0.2)", "box(x in [0.8, 1.2])"), "avoid in unsafe"),  # y is free in the box
+    ("W201", edit("ball([1, 0], 0.5)", "box(y in [-1, 1])", "ball([-1, 0], 0.2)", "box(x in [-1, 1])"), "avoid in unsafe"),
 ]
 
 
@@ -184,3 +186,7 @@ def test_extreme_centres_give_diagnostics_not_numpy_warnings():
         warnings.simplefilter("error")
         got = codes(edit("ball([1, 0], 0.5)", "ball([1e308, 0], 0.5)"))
     assert "E113" in got  # the goal lies far outside the state space
+
+
+def test_w201_stays_quiet_for_a_box_obstacle_beside_a_ball_goal():
+    assert "W201" not in codes(edit("ball([-1, 0], 0.2)", "box(x in [1.6, 2])"))
