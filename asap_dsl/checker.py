@@ -180,6 +180,14 @@ class Checker:
             raise _Unresolved
         return value
 
+    def finite_constant(self, e: ast.Expr, what: str) -> float:
+        """A constant that a reward computes with: infinity there gives inf - inf = NaN rewards."""
+        value = self.constant(e, what)
+        if not math.isfinite(value):
+            self.d.add("E117", f"{what} must be a finite number, not {_fmt(value)}", e.span)
+            raise _Unresolved
+        return value
+
     # ------------------------------------------------------------------ times
     def steps(self, d: ast.Duration, what: str, allow_inf: bool = False) -> Optional[int]:
         """Convert a duration to whole steps (None for inf); report problems."""
@@ -769,7 +777,7 @@ class Checker:
         if "r_sat" in clauses:
             value = clauses["r_sat"].value
             if not (isinstance(value, ast.Name) and value.id == "auto"):
-                r_sat = attempt(self.constant, value, "r_sat")
+                r_sat = attempt(self.finite_constant, value, "r_sat")
         observe = ("state",)
         if "observe" in clauses:
             observe = attempt(self.observe, clauses["observe"].value, default=("state",))
@@ -811,7 +819,7 @@ class Checker:
                         raise _Unresolved
                     params["window"] = int(params["window"])
             else:
-                params[s.name] = self.constant(s.value, f"the reward setting {s.name}")
+                params[s.name] = self.finite_constant(s.value, f"the reward setting {s.name}")
         if syn.kind == "distance":
             defaults = {"lambda_t": 1.0, "lambda_o": 1.0, "base": 0.0}
             params = {**defaults, **params}

@@ -228,6 +228,8 @@ def _checked_model(kind: str, params: Mapping[str, float]) -> RewardModel:
         raise ValueError(f"unknown reward '{kind}'{hint} (choose asap, rho, rho(window = D) or distance(...))")
     params = dict(params)
     for k in params:
+        if not math.isfinite(float(params[k])):
+            raise ValueError(f"reward setting {k} must be a finite number; got {params[k]}")
         if k not in REWARD_KINDS[kind]:
             raise ValueError(f"reward {kind} has no setting '{k}' (it takes {', '.join(REWARD_KINDS[kind]) or 'no settings'})")
     if "window" in params:

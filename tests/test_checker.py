@@ -249,3 +249,21 @@ def test_deadlines_are_bounded():
         asap_dsl.loads(src)
     assert any(d.code == "E117" and "more than 1,000,000" in d.message for d in info.value.diagnostics)
     asap_dsl.loads(src.replace("deadline 1000000000", "deadline 1000000"))
+
+
+@pytest.mark.parametrize("clause, where", [("r_sat inf", "inf"), ("reward distance(lambda_t = inf)", "inf"),
+                                           ("reward distance(base = -inf)", "-inf")])
+def test_infinite_reward_numbers_are_refused(clause, where):
+    src = ("system A { state x in [0, 1]  action u in [-1, 1]  dt = 0.1  ode { x' = u } }\n"
+           f"region g = ball([0.5], 0.1)\ntask t {{ asap in g  deadline 3  {clause} }}")
+    with pytest.raises(asap_dsl.SpecError) as info:
+        asap_dsl.loads(src)
+    (d,) = [d for d in info.value.diagnostics if d.code == "E117"]
+    assert "must be a finite number" in d.message
+
+
+def test_infinite_reward_numbers_in_a_flag_are_refused():
+    from asap_dsl.rewards import parse_reward
+
+    with pytest.raises(ValueError, match="finite"):
+        parse_reward("distance(lambda_t = inf)")
