@@ -98,46 +98,89 @@ class Symbols:
 
 
 class _Gen:
+    """Straight-line code for a list of expressions: every operation is one assignment to a
+    temporary, emitted in a post-order walk with an explicit stack. Neither the walk nor the
+    generated code nests, so a sum of 10,000 terms or a chain of 10,000 lets compiles (Python's
+    parser limits nested parentheses; its stack limits recursion). A let is emitted once, before
+    its first use."""
+
     def __init__(self, symbols: Symbols):
         self.sym = symbols
-        self.lets_needed: list[str] = []
+        self.lines: list[str] = []
+        self.lets: dict[str, str] = {}  # let name -> the temporary holding its value
 
-    def expr(self, e: ast.Expr) -> str:
+    def _temp(self, code: str) -> str:
+        name = f"_t{len(self.lines)}"
+        self.lines.append(f"    {name} = {code}")
+        return name
+
+    def _leaf(self, e: ast.Expr) -> Optional[str]:
         if isinstance(e, ast.Number):
             return _literal(e.value)
         if isinstance(e, ast.Infinity):
             return "_INF"
         if isinstance(e, ast.Name):
-            return self.name(e.id)
+            n = e.id
+            if n in self.sym.consts:
+                return _literal(self.sym.consts[n])
+            if n in BUILTIN_CONSTANTS:
+                return repr(BUILTIN_CONSTANTS[n])
+            if n in self.sym.states:
+                return f"S[{self.sym.states[n]}]"
+            if n in self.sym.actions:
+                return f"A[{self.sym.actions[n]}]"
+            if n in self.lets:
+                return self.lets[n]
+            if n not in self.sym.lets:
+                raise KeyError(n)
+            return None  # a let not emitted yet: its body first
+        return None
+
+    def _children(self, e: ast.Expr) -> list[ast.Expr]:
+        if isinstance(e, ast.Name):  # a let
+            return [self.sym.lets[e.id]]
         if isinstance(e, ast.Unary):
-            return f"(-{self.expr(e.arg)})"
+            return [e.arg]
         if isinstance(e, ast.Binary):
-            left, right = self.expr(e.left), self.expr(e.right)
-            if e.op == "^":
-                return f"_F.pow({left}, {right})"
-            return f"({left} {e.op} {right})"
+            return [e.left, e.right]
         if isinstance(e, ast.Call):
-            args = ", ".join(self.expr(a) for a in e.args)
-            return f"_F.{e.func}({args})"
+            return list(e.args)
         raise TypeError(f"not an arithmetic expression: {type(e).__name__}")
 
-    def name(self, n: str) -> str:
-        if n in self.sym.consts:
-            return _literal(self.sym.consts[n])
-        if n in BUILTIN_CONSTANTS:
-            return repr(BUILTIN_CONSTANTS[n])
-        if n in self.sym.states:
-            return f"S[{self.sym.states[n]}]"
-        if n in self.sym.actions:
-            return f"A[{self.sym.actions[n]}]"
-        if n in self.sym.lets:
-            if n not in self.lets_needed:
-                # dependencies first: generating the body registers the lets it reads
-                self.expr(self.sym.lets[n])
-                if n not in self.lets_needed:
-                    self.lets_needed.append(n)
-            return f"_let_{n}"
-        raise KeyError(n)
+    def _combine(self, e: ast.Expr, args: list[str]) -> str:
+        if isinstance(e, ast.Name):
+            self.lets[e.id] = args[0]
+            return args[0]
+        if isinstance(e, ast.Unary):
+            return self._temp(f"-{args[0]}")
+        if isinstance(e, ast.Binary):
+            if e.op == "^":
+                return self._temp(f"_F.pow({args[0]}, {args[1]})")
+            return self._temp(f"{args[0]} {e.op} {args[1]}")
+        return self._temp(f"_F.{e.func}({', '.join(args)})")
+
+    def expr(self, root: ast.Expr) -> str:
+        """Emit ``root``; returns the temporary (or literal) that holds its value."""
+        done: list[str] = []          # values of finished nodes, in post-order
+        stack: list[tuple[ast.Expr, int]] = [(root, -1)]  # (node, values before its children); -1: not expanded
+        while stack:
+            node, mark = stack.pop()
+            if mark < 0:
+                leaf = self._leaf(node)
+                if leaf is not None:
+                    done.append(leaf)
+                    continue
+                stack.append((node, len(done)))
+                for child in reversed(self._children(node)):
+                    stack.append((child, -1))
+                continue
+            args = done[mark:]
+            del done[mark:]
+            if isinstance(node, ast.Name) and node.id in self.lets:  # emitted meanwhile by a sibling
+                done.append(self.lets[node.id])
+                continue
+            done.append(self._combine(node, args))
+        return done[0]
 
 
 def _literal(value: float) -> str:
@@ -154,12 +197,7 @@ def compile_function(exprs: Sequence[ast.Expr], symbols: Symbols, backend: Simpl
     """Compile ``exprs`` to ``f(S, A) -> tuple`` for ``backend`` (numpy, casadi or interval)."""
     gen = _Gen(symbols)
     bodies = [gen.expr(e) for e in exprs]
-    # Let bodies reference other lets through their local names, generated in dependency order.
-    lines = ["def _compiled(S, A):"]
-    let_gen = _Gen(symbols)
-    for n in gen.lets_needed:
-        lines.append(f"    _let_{n} = {let_gen.expr(symbols.lets[n])}")
-    lines.append(f"    return ({', '.join(bodies)}{',' if len(bodies) == 1 else ''})")
+    lines = ["def _compiled(S, A):", *gen.lines, f"    return ({', '.join(bodies)}{',' if len(bodies) == 1 else ''})"]
     source = "\n".join(lines)
     namespace = {"_F": backend, "_INF": math.inf, "_NAN": math.nan}
     exec(compile(source, "<asap expression>", "exec"), namespace)  # noqa: S102 - our own generated code

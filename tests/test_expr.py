@@ -11,7 +11,8 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from asap_dsl import parser
+import asap_dsl
+from asap_dsl import ast, parser
 from asap_dsl.expr import FUNCTION_ARITY, Symbols, compile_batched, degree, evaluate_constant, interval_range
 from asap_dsl.intervals import FUNCTIONS, Interval
 from conftest import fuzz_examples
@@ -182,3 +183,22 @@ def test_interval_power_saturates_instead_of_overflowing():
     prog = asap_dsl.loads("system A { state x in [-1e300, 1e300]  action u in [-1, 1]  dt = 1  map { x = x + u } }\n"
                           "region g = ball([0], 1)\ntask t { asap in g  deadline 3 }")
     assert prog.task("t").rho_bounds == (float("-inf"), 1.0)
+
+
+@pytest.mark.parametrize("kind, n", [("sum", 300), ("lets", 2000)])
+def test_long_sums_and_let_chains_compile_and_run(kind, n):
+    """Generated code is straight-line: no nested parentheses for Python's parser, no recursion."""
+    head = "system Deep {\n  state x in [-1, 1] init [-0.5, 0.5]\n  action u in [-1, 1]\n  dt = 0.1\n  ode { x' = u }\n"
+    if kind == "sum":
+        body, last = "  let s = " + " + ".join("x" for _ in range(n)) + "\n", "s"
+    else:
+        body = "\n".join(f"  let l{i} = l{i - 1} + 1" if i else "  let l0 = x" for i in range(n)) + "\n"
+        last = f"l{n - 1}"
+    prog = asap_dsl.loads(head + body + f"}}\nregion g = ball([0.5], 0.1)\ntask t {{ asap in g and {last} > 0  deadline 10 }}\n")
+    venv = asap_dsl.make_vec_env(prog, "t", num_envs=4, seed=0)
+    venv.reset()
+    _, r, _, _ = venv.step_arrays(np.full((4, 1), 0.5))
+    assert np.isfinite(r).all()
+    f = compile_batched([ast.Name(last, prog.system.lets[last].span)], prog.system.symbols)
+    expect = 0.3 * n if kind == "sum" else 0.3 + (n - 1)
+    assert f(np.array([[0.3]]), None)[0, 0] == pytest.approx(expect)
