@@ -173,9 +173,15 @@ def analyse(text: str, name: str = "<string>") -> tuple[Optional[ProgramModel], 
     text = normalise_newlines(text)
     module, structural = parser.parse(text, name)
     diag = Collector(name, list(structural))
-    model = checker.check(module, text, diag)
-    if model is not None:
-        lint.lint(model, diag)
+    try:
+        model = checker.check(module, text, diag)
+        if model is not None:
+            lint.lint(model, diag)
+    except RecursionError:  # formulas defined through ~1,000 others: a real limit, said in words
+        raise SpecError([make("E001", "the spec nests too deeply to check: formulas or expressions are defined "
+                              "through more than about 900 levels of others", Span(0, 0, 0, 0), name,
+                              hint="split the chain: define intermediate formulas with fewer levels each")],
+                        text) from None
     if diag.has_errors:
         model = None
     return model, diag.sorted()

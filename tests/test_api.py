@@ -217,3 +217,12 @@ def test_positions_are_right_with_windows_and_old_mac_line_endings(tmp_path, new
         asap_dsl.load(p)
     d = [d for d in err.value.diagnostics if d.code == "E101"][0]
     assert (d.line, d.column) == (8, 12)
+
+
+def test_a_chain_of_a_thousand_formulas_is_a_plain_error_not_a_crash():
+    head = ("system Deep {\n  state x in [-1, 1] init [-0.5, 0.5]\n  action u in [-1, 1]\n  dt = 0.1\n"
+            "  ode { x' = u }\n}\nregion g = ball([0.5], 0.1)\n")
+    chain = "\n".join(f"formula f{i} = f{i - 1} and x > -2" if i else "formula f0 = in g" for i in range(1000))
+    with pytest.raises(asap_dsl.SpecError) as err:
+        asap_dsl.loads(head + chain + "\ntask t { asap f999  deadline 10 }\n")
+    assert err.value.diagnostics[0].code == "E001" and "nests too deeply" in err.value.diagnostics[0].message
