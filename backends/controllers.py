@@ -16,7 +16,7 @@ from typing import Optional, Sequence
 
 import numpy as np
 
-from asap_dsl.rewards import FormulaTracker, _is_static
+from asap_dsl.rewards import _is_static, _static_eval
 
 __all__ = ["GreedyController", "OracleController", "candidate_actions"]
 
@@ -58,18 +58,14 @@ class GreedyController:
         t = self.task
         with np.errstate(all="ignore"):
             if _is_static(t.asap):
-                tr = FormulaTracker(t.asap, len(nxt), self.system.n_state, satisfaction=False)
-                tr.restart_all(nxt)
-                score = np.asarray(tr.rob, dtype=np.float64)
+                score = _static_eval(t.asap, nxt, False)
             else:
                 regions = self.program.regions
                 score = -np.min([regions[r].distance(nxt) for r in t.asap_regions], axis=0)
             bad = ~np.isfinite(nxt).all(axis=1)
             bad |= ((nxt < self.system.state_low) | (nxt > self.system.state_high)).any(axis=1)
             if t.avoid is not None and _is_static(t.avoid):
-                av = FormulaTracker(t.avoid, len(nxt), self.system.n_state)
-                av.restart_all(np.where(np.isfinite(nxt), nxt, 0.0))
-                bad |= av.sat
+                bad |= _static_eval(t.avoid, np.where(np.isfinite(nxt), nxt, 0.0), True)
         score = np.where(np.isfinite(score), score, -np.inf)
         return np.where(bad, -np.inf, score)
 
@@ -97,8 +93,6 @@ class OracleController:
 
     def reset(self, states: np.ndarray) -> None:
         self.plan = [self.table.get(np.asarray(s, dtype=np.float64).tobytes()) for s in states]
-        missing = sum(p is None for p in self.plan)
-        self.unknown = missing
 
     def act(self, obs: np.ndarray, states: np.ndarray, t: int) -> np.ndarray:
         out = np.zeros((len(states), self.m))

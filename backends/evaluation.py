@@ -191,17 +191,11 @@ def load_run(path: Union[str, Path], spec: Union[str, Path, None] = None) -> Loa
     except Exception as err:  # noqa: BLE001 — a damaged or foreign zip: one line, not a trace
         raise RunError(f"{model_path}: cannot load the model ({type(err).__name__}: {str(err).splitlines()[0] if str(err) else ''})") from None
     scaling = Scaling.for_system(prog.system, config.observation_scaling, config.action_scaling)
-    expected = scaling.observation_space(_obs_space(prog, config.task)).shape
-    if tuple(model.observation_space.shape) != tuple(expected):
+    expected = prog.system.n_state + int("time" in prog.task(config.task).model.observe)  # the env's observation
+    if tuple(model.observation_space.shape) != (expected,):
         raise RunError(f"{model_path}: the model observes {model.observation_space.shape[0]} values, "
-                       f"the task {expected[0]}: it belongs to another run")
+                       f"the task {expected}: it belongs to another run")
     return LoadedRun(run, manifest, config, prog, model, scaling)
-
-
-def _obs_space(prog: Program, task: str):
-    from asap_dsl.env import _Core
-
-    return _Core(prog, task, 1, None, autoreset=False).observation_space
 
 
 def evaluate(run: Union[str, Path], *, episodes: int = 1000, tolerances: Optional[Sequence[int]] = None,
@@ -242,6 +236,8 @@ def evaluate(run: Union[str, Path], *, episodes: int = 1000, tolerances: Optiona
     if seed == cfg.validation_seed:
         ev.notes.append(f"seed {seed} draws the validation states this run selected its model on: "
                         "these rates flatter it")
-    if write if write is not None else (seed == EVAL_SEED and int(episodes) == cfg.eval_episodes and not tolerances):
+    if write is None:  # the run's own evaluation: its episode count, seed 2024, the task's tolerances
+        write = seed == EVAL_SEED and int(episodes) == cfg.eval_episodes and not tolerances
+    if write:
         atomic_write_json(loaded.run.eval_path, ev.to_dict())
     return ev
