@@ -18,6 +18,7 @@ from . import ast
 from .diagnostics import Collector, Span
 from .diagnostics import closest as _closest
 from .expr import BUILTIN_CONSTANTS, FUNCTION_ARITY, Symbols, names_in, nodes_in, compile_batched, compile_scalar, evaluate_constant, interval_range
+from .domains import domain_issues
 from .intervals import Interval
 from .model import (ActionVar, FormulaModel, Integrator, ProgramModel, RegionModel, RewardModel, StateVar,
                     SystemModel, TaskModel)
@@ -60,6 +61,7 @@ class Checker:
         self.states: list[StateVar] = []
         self.actions: list[ActionVar] = []
         self.lets: dict[str, ast.Expr] = {}
+        self._domain_reported: set[Span] = set()  # domain issues already reported (see check_domains)
         self.dt: Optional[float] = None
         self._const_failed: set[str] = set()
         self.regions: dict[str, RegionModel] = {}
@@ -328,6 +330,7 @@ class Checker:
         def satisfied(states, _l=left, _r=right, _op=op):
             return _op(_l(states), _r(states))
 
+        self.check_domains([e.left, e.right], "this condition")
         bounds = interval_range(margin, symbols, self.state_box())
         return ir.Atom(self.text(e.span), rho, satisfied, (bounds.lo, bounds.hi))
 
@@ -375,6 +378,23 @@ class Checker:
     def symbols(self) -> Symbols:
         return Symbols(dict(self.consts), {s.name: s.index for s in self.states},
                        {a.name: a.index for a in self.actions}, dict(self.lets))
+
+    def check_domains(self, exprs, where: str, actions: bool = False) -> None:
+        """E124 where an operation surely leaves its domain over the state space, W209 where it
+        may (interval analysis, :mod:`asap_dsl.domains`). Lets are checked once, on their own,
+        before any use; an issue is reported at its place once, whichever use meets it."""
+        action_box = [(a.low, a.high) for a in self.actions] if actions else ()
+        for issue in domain_issues(exprs, self.symbols(), self.state_box(), action_box):
+            if issue.span in self._domain_reported:
+                continue
+            self._domain_reported.add(issue.span)
+            if issue.surely:
+                self.d.add("E124", f"{issue.message} (in {where}): the value is NaN or infinite for every state",
+                           issue.span, hint="check the expression, or the state space it is evaluated over")
+            else:
+                self.d.add("W209", f"{issue.message} (in {where}): NaN or infinity there ends an episode as "
+                           "`non_finite`", issue.span,
+                           hint="narrow the state space, or guard the argument (for example sqrt(abs(x)) or max(x, 1e-9))")
 
     def state_box(self) -> list[tuple[float, float]]:
         return [(s.low, s.high) for s in self.states]
@@ -502,9 +522,13 @@ class Checker:
                 self.lets[name] = lt.value
             except _Unresolved:
                 pass
+        for name in self.lets:
+            self.check_domains([self.lets[name]], f"let '{name}'")
 
         kind, equations, simulator, dyn_span = self.check_dynamics(sys)
         integrator = self.check_integrator(sys, kind)
+        if equations:
+            self.check_domains(equations, "the dynamics", actions=True)
         if self.dt is None or kind is None:
             return None
         return SystemModel(sys.name, tuple(self.states), tuple(self.actions), dict(self.consts), dict(self.lets),

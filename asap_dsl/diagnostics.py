@@ -61,12 +61,14 @@ RULES: dict[str, Rule] = {
         Rule("E121", "not-constant", "error", "An expression that must be a constant but reads a state, action or let."),
         Rule("E122", "init-not-sampleable", "error", "An `init` range (given, or the state space by default) that is infinite or too wide to draw states from uniformly."),
         Rule("E123", "init-inside-avoid", "error", "Every initial state (512 drawn from the `init` box) already satisfies `avoid`: no episode can start."),
+        Rule("E124", "outside-domain", "error", "An operation whose argument is outside its domain for every state: sqrt or log of a negative number, asin/acos beyond ±1, a division by zero, a negative base to a fractional power."),
         Rule("W201", "regions-overlap", "warning", "The `asap` region overlaps the `avoid` region: the target is partly unsafe."),
         Rule("W202", "unused-name", "warning", "A constant, let, region or formula that nothing uses."),
         Rule("W203", "horizon-beyond-deadline", "warning", "A formula looks further into the past than the deadline allows any trace to be long."),
         Rule("W204", "r-sat-below-bound", "warning", "A numeric `r_sat` below the theorem's bound rho_max + (rho_max - rho_min) * k_max."),
         Rule("W206", "goal-partly-outside-space", "warning", "Part of the `asap` region lies outside the state space."),
         Rule("W207", "unbounded-robustness", "warning", "Robustness bounds are infinite, so `r_sat auto` cannot apply the theorem."),
+        Rule("W209", "may-leave-domain", "warning", "An operation whose argument may leave its domain for some states of the state space (NaN or infinity there, which ends the episode as `non_finite`)."),
         Rule("W208", "deadline-infeasible", "warning", "(lint --deep) Some sampled initial states cannot reach the goal within the deadline."),
     ]
 }

@@ -6,7 +6,7 @@ Episodes follow the paper's Algorithm 1 and 2 (LANGUAGE.md, "Tasks"):
   (redrawn while ``avoid`` holds at step 0; :func:`asap_dsl.sampling.initial_states`).
 * ``step``: actions are clipped to the action bounds; the simulator advances one ``dt``.
   The episode then ends, in this order of precedence:
-  ``non_finite`` (a NaN/inf state), ``avoid`` (``avoid`` holds), ``out_of_bounds`` (the state left
+  ``non_finite`` (a NaN/inf state, a NaN robustness, or a reward beyond float32), ``avoid`` (``avoid`` holds), ``out_of_bounds`` (the state left
   the state space) — all three ``terminated`` (failure) — else ``time_limit`` at step ``k``
   (``truncated``). Reaching ``asap`` does not end the episode (the agent must stay).
 * The observation is the state as float32, clipped into the state-space box (a terminal state
@@ -16,7 +16,9 @@ Episodes follow the paper's Algorithm 1 and 2 (LANGUAGE.md, "Tasks"):
 * ``info``: ``rho`` (ρ of ``asap`` at the step), ``satisfied`` (``asap`` holds), ``t_reach`` (the first
   step at which ``asap`` held with no failure at that step, else None), ``end_reason`` (None while
   running, else one of ``END_REASONS``) and ``t`` (steps taken).
-* Rewards: :mod:`asap_dsl.rewards` (the failure step earns the reward's floor).
+* Rewards: :mod:`asap_dsl.rewards` (the failure step earns the reward's floor; a non_finite
+  step earns that floor, or 0 where the reward has none). Every reward, observation and ``info``
+  value is finite.
 
 ``make_vec_env`` is an SB3 ``VecEnv`` that steps all entries at once in numpy, with autoreset of
 finished entries (their ``info`` holds ``terminal_observation`` and ``TimeLimit.truncated``) and
@@ -41,6 +43,7 @@ __all__ = ["AsapEnv", "AsapVecEnv", "END_REASONS", "make_env", "make_vec_env", "
 
 END_REASONS = (None, "avoid", "out_of_bounds", "non_finite", "time_limit")
 _AVOID, _OOB, _NONFINITE, _TIME = 1, 2, 3, 4
+_F32MAX = float(np.finfo(np.float32).max)
 
 
 def _program(prog_or_path):
@@ -103,6 +106,14 @@ class _Core:
         self.end = np.zeros(self.B, dtype=np.int64)
 
     # ---- helpers -----------------------------------------------------------------------------
+    def _finite_rho(self, rho: np.ndarray) -> np.ndarray:
+        """ρ for ``info``: NaN (the episode ended as non_finite) as 0; ±inf (an empty past window
+        at the first steps) as the formula's bound, or the largest float where that is infinite."""
+        lo, hi = self.tm.rho_bounds
+        big = np.finfo(np.float64).max
+        return np.nan_to_num(rho, nan=0.0, posinf=hi if np.isfinite(hi) else big, neginf=lo if np.isfinite(lo) else -big)
+
+
     def _sample(self, m: int):
         s0 = initial_states(self.system, m, self.rng, self.tm.avoid)
         k = self.rng.integers(self.kmin, self.kmax + 1, size=m)
@@ -140,8 +151,9 @@ class _Core:
         """Start every entry at the given initial states ``[B, n]`` with episode lengths ``k``
         (an int or ``[B]``); returns the observations. Evaluation starts its seeded states here."""
         self.states = self._set_states(np.asarray(states, dtype=np.float64).reshape(self.B, self.n))
-        for tr in self.trackers:
-            tr.restart_all(self.states)
+        with np.errstate(over="ignore", invalid="ignore", divide="ignore"):  # NaN/inf: see step
+            for tr in self.trackers:
+                tr.restart_all(self.states)
         self.t[:] = 0
         self.k[:] = k
         self.end[:] = 0
@@ -159,7 +171,7 @@ class _Core:
         safe = new if finite.all() else np.where(finite[:, None], new, self.states)
         oob = ((safe < self.low) | (safe > self.high)).any(axis=1)
         if self.avoid is not None:
-            with np.errstate(over="ignore", invalid="ignore"):  # huge finite states: regions may overflow to inf
+            with np.errstate(over="ignore", invalid="ignore", divide="ignore"):  # huge states overflow; W209 NaNs
                 self.avoid.step(safe)
         end = np.zeros(self.B, dtype=np.int64)
         end[oob] = _OOB
@@ -177,7 +189,7 @@ class _Core:
             cand[done] = s0
             kc = np.zeros(self.B, dtype=np.int64)
             kc[done] = k0
-        with np.errstate(over="ignore", invalid="ignore"):
+        with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
             for tr in self._late:
                 if restart:  # step, then reset the finished entries and feed their initial states
                     tr.step_and_restart(safe, done, cand)
@@ -185,13 +197,33 @@ class _Core:
                     tr.step(safe)
         asap_rob, asap_sat = self.asap.step_rob, self.asap.step_sat  # at the reached states
         reward = self.reward.value(safe, asap_rob, asap_sat, failed)
+        # A NaN robustness (an operation left its domain, lint's W209) or a reward that is not a
+        # finite float32 (SB3 stores float32) ends the episode as non_finite, with a finite reward.
+        bad = np.isnan(asap_rob) | ~(np.abs(reward) <= _F32MAX)
+        if self.avoid is not None:
+            bad |= np.isnan(self.avoid.step_rob)
+        if bad.any():
+            reward = np.where(bad, self.reward.non_finite_value, reward)
+            asap_sat = asap_sat & ~bad
+            late = bad & ~done  # finished only now: their fresh episodes are drawn here
+            end[bad] = _NONFINITE
+            failed |= bad
+            truncated &= ~bad
+            done |= bad
+            if self.autoreset and late.any():
+                s0, k0 = self._sample(int(late.sum()))
+                if not restart:
+                    cand, kc, restart = np.zeros((self.B, self.n)), np.zeros(self.B, dtype=np.int64), True
+                cand[late], kc[late] = s0, k0
+                for tr in self._late:
+                    tr.restart(late, cand)
         newly = asap_sat & ~failed & (self.t_reach < 0)
         self.t_reach[newly] = self.t[newly]
         self.states = safe
         self.end = end
         obs = self.obs()
         # Info of the finished step (before any autoreset).
-        self.info_rho = asap_rob.copy()
+        self.info_rho = self._finite_rho(asap_rob)
         self.info_sat = asap_sat.copy()
         self.info_t_reach = self.t_reach.copy()
         self.info_end = end.copy()
@@ -242,7 +274,7 @@ class AsapEnv(gym.Env):
         obs = self.core.reset_all()
         c = self.core
         tr = int(c.t_reach[0])
-        info = {"rho": float(c.asap.rob[0]), "satisfied": bool(c.asap.sat[0]), "t_reach": None if tr < 0 else tr,
+        info = {"rho": float(c._finite_rho(c.asap.rob)[0]), "satisfied": bool(c.asap.sat[0]), "t_reach": None if tr < 0 else tr,
                 "end_reason": None, "t": 0}
         return obs[0], info
 

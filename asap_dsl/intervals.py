@@ -2,7 +2,8 @@
 
 Used to bound robustness over the state space (the ``r_sat auto`` of the theorem) and by lint
 rules. :class:`Interval` supports the operators the language has; :data:`FUNCTIONS` the
-functions. Enclosures are sound (never too narrow) and exact for monotone pieces.
+functions. Enclosures are sound (never too narrow, and the whole line where an operation may give NaN)
+and exact for monotone pieces.
 """
 
 from __future__ import annotations
@@ -81,15 +82,19 @@ class Interval:
             if self.hi <= 0:
                 return Interval(p(self.hi), p(self.lo))
             return Interval(0.0, max(p(self.lo), p(self.hi)))
-        # Real exponent: defined for a positive base only; exp(o * log(self)). A negative base
-        # with an exponent that varies over an interval can meet whole exponents (x^y with y = 1, 2),
-        # where the power is real and of either sign: nothing narrower than the line is sound.
-        if self.lo < 0 and o.lo < o.hi:
+        # Real exponent: defined for a non-negative base only; exp(o * log(self)). A negative base
+        # gives NaN (or, at whole exponents, a real of either sign): nothing narrower is sound.
+        if self.lo < 0:  # NaN for some base: no enclosure (see asap_dsl.domains)
             return Interval(-math.inf, math.inf)
         return exp(o * log(self))
 
     def __rpow__(self, o):
         return Interval.of(o) ** self
+
+
+# The enclosure where an operation leaves its domain for part of its argument: its value there is
+# NaN, which no narrower interval encloses. (asap_dsl.domains reports where this happens.)
+_UNKNOWN = Interval(-math.inf, math.inf)
 
 
 def _power(v: float, n: int) -> float:
@@ -126,6 +131,8 @@ def exp(x) -> Interval:
 
 def log(x) -> Interval:
     x = Interval.of(x)
+    if x.lo < 0:  # NaN for part of the argument
+        return _UNKNOWN
     lo = -math.inf if x.lo <= 0 else math.log(x.lo)
     hi = -math.inf if x.hi <= 0 else (math.inf if math.isinf(x.hi) else math.log(x.hi))
     return Interval(lo, hi)
@@ -133,6 +140,8 @@ def log(x) -> Interval:
 
 def sqrt(x) -> Interval:
     x = Interval.of(x)
+    if x.lo < 0:  # NaN for part of the argument
+        return _UNKNOWN
     return Interval(math.sqrt(max(x.lo, 0.0)), math.sqrt(max(x.hi, 0.0)) if not math.isinf(x.hi) else math.inf)
 
 
@@ -169,11 +178,15 @@ def tan(x) -> Interval:
 
 def asin(x) -> Interval:
     x = Interval.of(x)
+    if x.lo < -1 or x.hi > 1:  # NaN for part of the argument
+        return _UNKNOWN
     return Interval(math.asin(max(-1.0, min(1.0, x.lo))), math.asin(max(-1.0, min(1.0, x.hi))))
 
 
 def acos(x) -> Interval:
     x = Interval.of(x)
+    if x.lo < -1 or x.hi > 1:
+        return _UNKNOWN
     return Interval(math.acos(max(-1.0, min(1.0, x.hi))), math.acos(max(-1.0, min(1.0, x.lo))))
 
 

@@ -305,6 +305,11 @@ class Reward:
                 raise ValueError(f"failure_reward must be a finite number; got {failure_reward!r}")
         self.floor = floor if floor is not None and math.isfinite(floor) else None
 
+    @property
+    def non_finite_value(self) -> float:
+        """The reward of a step whose value is not finite: the failure reward, else 0."""
+        return self.floor if self.floor is not None else 0.0
+
     # The env calls these in step with the trackers of asap; ``value`` reads them.
     def restart_all(self, states):
         for t in self.trackers:
