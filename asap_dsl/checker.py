@@ -18,7 +18,8 @@ from . import ast
 from .diagnostics import Collector, Span
 from .diagnostics import closest as _closest
 from .expr import BUILTIN_CONSTANTS, FUNCTION_ARITY, Symbols, names_in, nodes_in, compile_batched, compile_scalar, evaluate_constant, interval_range
-from .domains import domain_issues
+from .domains import DomainChecker
+from .rewards import FLOAT32_MAX
 from .intervals import Interval
 from .model import (ActionVar, FormulaModel, Integrator, ProgramModel, RegionModel, RewardModel, StateVar,
                     SystemModel, TaskModel)
@@ -62,6 +63,7 @@ class Checker:
         self.actions: list[ActionVar] = []
         self.lets: dict[str, ast.Expr] = {}
         self._domain_reported: set[Span] = set()  # domain issues already reported (see check_domains)
+        self._domains: Optional[tuple[DomainChecker, DomainChecker]] = None  # over states; states and actions
         self.dt: Optional[float] = None
         self._const_failed: set[str] = set()
         self.regions: dict[str, RegionModel] = {}
@@ -183,10 +185,11 @@ class Checker:
         return value
 
     def finite_constant(self, e: ast.Expr, what: str) -> float:
-        """A constant that a reward computes with: infinity there gives inf - inf = NaN rewards."""
+        """A constant that a reward computes with: infinity there gives inf - inf = NaN rewards,
+        and SB3 stores rewards as float32 (at most about 3.4e38)."""
         value = self.constant(e, what)
-        if not math.isfinite(value):
-            self.d.add("E117", f"{what} must be a finite number, not {_fmt(value)}", e.span)
+        if not abs(value) <= FLOAT32_MAX:
+            self.d.add("E117", f"{what} must be a finite number within ±3.4e38 (a float32 reward), not {_fmt(value)}", e.span)
             raise _Unresolved
         return value
 
@@ -382,9 +385,11 @@ class Checker:
     def check_domains(self, exprs, where: str, actions: bool = False) -> None:
         """E124 where an operation surely leaves its domain over the state space, W209 where it
         may (interval analysis, :mod:`asap_dsl.domains`). Lets are checked once, on their own,
-        before any use; an issue is reported at its place once, whichever use meets it."""
-        action_box = [(a.low, a.high) for a in self.actions] if actions else ()
-        for issue in domain_issues(exprs, self.symbols(), self.state_box(), action_box):
+        before any use; an issue is reported once, at its place."""
+        if self._domains is None:  # built once the states, actions and lets are known
+            symbols, box = self.symbols(), self.state_box()
+            self._domains = (DomainChecker(symbols, box), DomainChecker(symbols, box, [(a.low, a.high) for a in self.actions]))
+        for issue in self._domains[actions].check(exprs):
             if issue.span in self._domain_reported:
                 continue
             self._domain_reported.add(issue.span)

@@ -78,10 +78,23 @@ def _check_binary(op: str, a: Interval, b: Interval, exponent: Optional[float]) 
 def domain_issues(exprs: Sequence[ast.Expr], symbols: Symbols, state_box: Sequence[tuple[float, float]],
                   action_box: Sequence[tuple[float, float]] = ()) -> list[DomainIssue]:
     """The operations of ``exprs`` (lets they use included) that may leave their domain."""
-    walker = _Walker(symbols, state_box, action_box)
-    for e in exprs:
-        walker.value(e)
-    return walker.issues
+    return DomainChecker(symbols, state_box, action_box).check(exprs)
+
+
+class DomainChecker:
+    """Checks expressions one call at a time over one box, remembering the lets already walked
+    (each let is walked once however many expressions use it: linear in the spec)."""
+
+    def __init__(self, symbols: Symbols, state_box: Sequence[tuple[float, float]],
+                 action_box: Sequence[tuple[float, float]] = ()):
+        self._walker = _Walker(symbols, state_box, action_box)
+
+    def check(self, exprs: Sequence[ast.Expr]) -> list[DomainIssue]:
+        """The issues first met in ``exprs`` (an issue inside a let is reported once, on first use)."""
+        start = len(self._walker.issues)
+        for e in exprs:
+            self._walker.value(e)
+        return self._walker.issues[start:]
 
 
 class _Walker:
@@ -159,7 +172,12 @@ class _Walker:
         if found is not None:
             self._report(e.span, found)
             return _UNKNOWN, True
-        if math.isnan(out.lo) or math.isnan(out.hi):
+        if math.isnan(out.lo) or math.isnan(out.hi):  # inf - inf, inf / inf, ...
+            if not failing:
+                point = all(v.lo == v.hi for v in vals)
+                self._report(e.span, ("this operation on infinite values (inf - inf, inf / inf, ...) "
+                                      f"{'is' if point else 'may be'} not a number", point))
+                return _UNKNOWN, True
             out = _UNKNOWN
         return out, failing
 
@@ -186,4 +204,4 @@ class _Walker:
         return done[0]
 
 
-__all__ = ["DomainIssue", "domain_issues"]
+__all__ = ["DomainChecker", "DomainIssue", "domain_issues"]

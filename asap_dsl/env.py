@@ -35,7 +35,7 @@ import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
-from .rewards import FormulaTracker, make_reward
+from .rewards import FLOAT32_MAX, FormulaTracker, make_reward
 from .sampling import initial_states
 from .sim import build_simulator
 
@@ -43,7 +43,6 @@ __all__ = ["AsapEnv", "AsapVecEnv", "END_REASONS", "make_env", "make_vec_env", "
 
 END_REASONS = (None, "avoid", "out_of_bounds", "non_finite", "time_limit")
 _AVOID, _OOB, _NONFINITE, _TIME = 1, 2, 3, 4
-_F32MAX = float(np.finfo(np.float32).max)
 
 
 def _program(prog_or_path):
@@ -145,13 +144,14 @@ class _Core:
 
     # ---- episodes ----------------------------------------------------------------------------
     def reset_all(self) -> np.ndarray:
-        return self.start(*self._sample(self.B))
+        with np.errstate(over="ignore", invalid="ignore", divide="ignore"):  # avoid is evaluated: as in step
+            return self.start(*self._sample(self.B))
 
     def start(self, states: np.ndarray, k) -> np.ndarray:
         """Start every entry at the given initial states ``[B, n]`` with episode lengths ``k``
         (an int or ``[B]``); returns the observations. Evaluation starts its seeded states here."""
         self.states = self._set_states(np.asarray(states, dtype=np.float64).reshape(self.B, self.n))
-        with np.errstate(over="ignore", invalid="ignore", divide="ignore"):  # NaN/inf: see step
+        with np.errstate(over="ignore", invalid="ignore", divide="ignore"):  # as in step
             for tr in self.trackers:
                 tr.restart_all(self.states)
         self.t[:] = 0
@@ -162,6 +162,12 @@ class _Core:
 
     def step(self, actions):
         """Advance every entry; returns (obs, reward, terminated, truncated, final_obs, done)."""
+        # Huge states overflow in regions and rewards, and W209 operations give NaN: both are
+        # handled below (non_finite), so numpy's warnings about them are not the user's business.
+        with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
+            return self._step(actions)
+
+    def _step(self, actions):
         a = np.asarray(actions, dtype=np.float64).reshape(self.B, -1)
         if a.shape[1] != self.system.n_action:
             raise ValueError(f"actions must have shape [{self.B}, {self.system.n_action}]; got {np.shape(actions)}")
@@ -171,8 +177,7 @@ class _Core:
         safe = new if finite.all() else np.where(finite[:, None], new, self.states)
         oob = ((safe < self.low) | (safe > self.high)).any(axis=1)
         if self.avoid is not None:
-            with np.errstate(over="ignore", invalid="ignore", divide="ignore"):  # huge states overflow; W209 NaNs
-                self.avoid.step(safe)
+            self.avoid.step(safe)
         end = np.zeros(self.B, dtype=np.int64)
         end[oob] = _OOB
         if self.avoid is not None:
@@ -189,17 +194,16 @@ class _Core:
             cand[done] = s0
             kc = np.zeros(self.B, dtype=np.int64)
             kc[done] = k0
-        with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
-            for tr in self._late:
-                if restart:  # step, then reset the finished entries and feed their initial states
-                    tr.step_and_restart(safe, done, cand)
-                else:
-                    tr.step(safe)
+        for tr in self._late:
+            if restart:  # step, then reset the finished entries and feed their initial states
+                tr.step_and_restart(safe, done, cand)
+            else:
+                tr.step(safe)
         asap_rob, asap_sat = self.asap.step_rob, self.asap.step_sat  # at the reached states
         reward = self.reward.value(safe, asap_rob, asap_sat, failed)
         # A NaN robustness (an operation left its domain, lint's W209) or a reward that is not a
         # finite float32 (SB3 stores float32) ends the episode as non_finite, with a finite reward.
-        bad = np.isnan(asap_rob) | ~(np.abs(reward) <= _F32MAX)
+        bad = np.isnan(asap_rob) | ~(np.abs(reward) <= FLOAT32_MAX)
         if self.avoid is not None:
             bad |= np.isnan(self.avoid.step_rob)
         if bad.any():

@@ -250,9 +250,13 @@ class _Builder(Transformer):
     def pow(self, meta, children):
         return ast.Binary("^", children[0], children[1], _span(meta))
 
-    def arith(self, meta, children):
-        left, (op, _), right = children
-        return ast.Binary(op, left, right, _span(meta))
+    def arith_chain(self, meta, children):
+        # a + b - c is (a + b) - c: left-associative, built in a loop (chains can be long). Every
+        # partial result starts where the chain does (a parenthesis included).
+        out, start = children[0], _span(meta)
+        for (op, _), right in zip(children[1::2], children[2::2]):
+            out = ast.Binary(op, out, right, _join(start, right.span))
+        return out
 
     def compare(self, meta, children):
         left, (op, op_span), right = children
@@ -264,6 +268,12 @@ class _Builder(Transformer):
     def binary_logic(self, meta, children):
         left, (op, _), right = children
         return ast.Logic(_CANONICAL[op], left, right, _span(meta))
+
+    def logic_chain(self, meta, children):
+        out, start = children[0], _span(meta)
+        for (op, _), right in zip(children[1::2], children[2::2]):
+            out = ast.Logic(_CANONICAL[op], out, right, _join(start, right.span))
+        return out
 
     def temporal1(self, meta, children):
         (op, op_span), interval, arg = children

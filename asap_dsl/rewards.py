@@ -190,6 +190,10 @@ class FormulaTracker:
 # --------------------------------------------------------------------------------------------
 
 
+#: The largest reward SB3 can store (its buffers are float32).
+FLOAT32_MAX = float(np.finfo(np.float32).max)
+
+
 def _clip_finite(x: np.ndarray, lo: float, hi: float) -> np.ndarray:
     x = np.clip(x, lo, hi)
     if not (math.isfinite(lo) and math.isfinite(hi)):
@@ -228,8 +232,8 @@ def _checked_model(kind: str, params: Mapping[str, float]) -> RewardModel:
         raise ValueError(f"unknown reward '{kind}'{hint} (choose asap, rho, rho(window = D) or distance(...))")
     params = dict(params)
     for k in params:
-        if not math.isfinite(float(params[k])):
-            raise ValueError(f"reward setting {k} must be a finite number; got {params[k]}")
+        if not abs(float(params[k])) <= FLOAT32_MAX:
+            raise ValueError(f"reward setting {k} must be a finite number within ±3.4e38 (a float32 reward); got {params[k]}")
         if k not in REWARD_KINDS[kind]:
             raise ValueError(f"reward {kind} has no setting '{k}' (it takes {', '.join(REWARD_KINDS[kind]) or 'no settings'})")
     if "window" in params:
@@ -301,8 +305,8 @@ class Reward:
             floor = None
         if failure_reward is not None:
             floor = float(failure_reward)
-            if not math.isfinite(floor):
-                raise ValueError(f"failure_reward must be a finite number; got {failure_reward!r}")
+            if not abs(floor) <= FLOAT32_MAX:
+                raise ValueError(f"failure_reward must be a finite number within ±3.4e38 (a float32 reward); got {failure_reward!r}")
         self.floor = floor if floor is not None and math.isfinite(floor) else None
 
     @property

@@ -1,6 +1,7 @@
 """Fuzz the front end: token soup, random text and mutations of every spec and LANGUAGE.md
 example. ``asap_dsl.loads`` returns a Program or raises SpecError with positioned, plain-word
-diagnostics and a report that formats; never any other exception.
+diagnostics and a report that formats; never any other exception. A Program that loads runs a
+few steps of each task's batched environment with finite rewards, observations and info.
 
 Volume: ``ASAP_FUZZ_EXAMPLES`` examples per test (default below, a few thousand in all)."""
 
@@ -12,12 +13,15 @@ import time
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
+import numpy as np
+
 import asap_dsl
 from asap_dsl import parser
+from asap_dsl.env import make_vec_env
 from conftest import SPECS, fuzz_examples, language_blocks
 from test_parser import lark_internal
 
-STATS = {"inputs": 0, "worst": 0.0, "worst_input": ""}
+STATS = {"inputs": 0, "ran": 0, "worst": 0.0, "worst_input": ""}
 
 parser._lark()  # build the parser once, so that the timing below is per input
 SEEDS = [p.read_text(encoding="utf-8") for p in SPECS] + language_blocks()
@@ -50,11 +54,34 @@ def check_one(text: str) -> None:
         assert isinstance(prog, asap_dsl.Program)
         for name in prog.tasks:
             prog.task(name).spec.text  # noqa: B018 - builds the spec
+        run_briefly(prog)
     finally:
         dt = time.perf_counter() - t0
         STATS["inputs"] += 1
         if dt > STATS["worst"]:
             STATS["worst"], STATS["worst_input"] = dt, text[:200]
+
+
+def run_briefly(prog: asap_dsl.Program, steps: int = 4) -> None:
+    """A spec that loads runs: every task's batched environment takes a few steps with random
+    actions, and every reward, observation and info value is finite (a NaN ends the episode as
+    ``non_finite``). MuJoCo systems are left to test_sim (building one per input is slow)."""
+    if prog.system.kind == "simulator":
+        return
+    for name in prog.tasks:
+        env = make_vec_env(prog, task=name, num_envs=3, seed=0)
+        obs = env.reset()
+        assert np.isfinite(obs).all()
+        rng = np.random.default_rng(0)
+        for _ in range(steps):
+            actions = rng.uniform(env.action_space.low, env.action_space.high, size=(3,) + env.action_space.shape)
+            obs, rewards, _, infos = env.step(actions)
+            assert np.isfinite(obs).all() and np.isfinite(rewards).all(), (obs, rewards)
+            for info in infos:
+                for key, value in info.items():
+                    if isinstance(value, (float, np.ndarray)):
+                        assert np.isfinite(value).all(), (key, value)
+        STATS["ran"] += 1
 
 
 token = st.one_of(st.sampled_from(PUNCT), st.sampled_from(WORDS), st.sampled_from(NUMBERS),
@@ -128,4 +155,4 @@ def test_seeds_themselves():
 def test_report_fuzz_volume(capsys):
     # runs last in this file (pytest keeps definition order): the figures for the report
     with capsys.disabled():
-        print(f"\n[fuzz] {STATS['inputs']} inputs, slowest {STATS['worst'] * 1000:.1f} ms: {STATS['worst_input'][:80]!r}")
+        print(f"\n[fuzz] {STATS['inputs']} inputs ({STATS['ran']} environments run), slowest {STATS['worst'] * 1000:.1f} ms: {STATS['worst_input'][:80]!r}")
