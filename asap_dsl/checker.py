@@ -10,7 +10,7 @@ lint rules in :mod:`asap_dsl.lint`.
 from __future__ import annotations
 
 import math
-from typing import Callable, Optional
+from typing import Callable, Iterable, Optional
 
 import numpy as np
 
@@ -38,6 +38,10 @@ TRAIN_SETTINGS = {
 OBSERVE_ITEMS = ("state", "time")
 MAX_SUBSTEPS = 1000  # integrator substeps per step
 MAX_DEADLINE = 1_000_000  # steps of the longest episode
+# A formula as its evaluators walk it (formulas it uses inlined): nested operators, and nodes.
+# Chains of `and`/`or` are balanced (log2 deep) and do not approach the depth.
+MAX_FORMULA_DEPTH = 200
+MAX_FORMULA_SIZE = 100_000
 _MAX_STEPS = 1e9  # a time of more steps than this is a typo, not an episode
 _FUTURE_TO_PAST = {"always": "historically", "eventually": "once", "until": "since"}
 
@@ -62,6 +66,7 @@ class Checker:
         self.states: list[StateVar] = []
         self.actions: list[ActionVar] = []
         self.lets: dict[str, ast.Expr] = {}
+        self._measure_memo: dict = {}  # ir.measure's, shared: formulas are measured once
         self._domain_reported: set[Span] = set()  # domain issues already reported (see check_domains)
         self._domains: Optional[tuple[DomainChecker, DomainChecker]] = None  # over states; states and actions
         self.dt: Optional[float] = None
@@ -143,8 +148,15 @@ class Checker:
             self.number(e.arg, allowed, context)
             return
         if isinstance(e, ast.Binary):
+            # a + b + ... is left-deep, as long as the user wrote it: walk its spine in a loop and
+            # recurse into the right operands only (their nesting is bounded by the parser).
+            operands = []
+            while isinstance(e, ast.Binary):
+                operands.append(e.right)
+                e = e.left
+            operands.append(e)
             errors = 0
-            for side in (e.left, e.right):
+            for side in reversed(operands):
                 try:
                     self.number(side, allowed, context)
                 except _Unresolved:
@@ -259,19 +271,26 @@ class Checker:
         if isinstance(e, ast.Not):
             return ir.Not(self.condition(e.arg, causal_clause))
         if isinstance(e, ast.Logic):
-            left = right = None
-            errors = 0
-            try:
-                left = self.condition(e.left, causal_clause)
-            except _Unresolved:
-                errors += 1
-            try:
-                right = self.condition(e.right, causal_clause)
-            except _Unresolved:
-                errors += 1
+            # A chain a and b and ... (left-deep, as long as written) is walked in a loop.
+            operands = []
+            node = e
+            while isinstance(node, ast.Logic) and node.op == e.op and e.op != "implies":
+                operands.append(node.right)
+                node = node.left
+            operands.append(node)
+            if e.op == "implies":
+                operands = [e.right, e.left]
+            built, errors = [], 0
+            for side in reversed(operands):
+                try:
+                    built.append(self.condition(side, causal_clause))
+                except _Unresolved:
+                    errors += 1
             if errors:
                 raise _Unresolved
-            return {"and": ir.And, "or": ir.Or, "implies": ir.Implies}[e.op](left, right)
+            if e.op == "implies":
+                return ir.Implies(*built)
+            return ir.balanced(ir.And if e.op == "and" else ir.Or, built, self._measure_memo)
         if isinstance(e, (ast.Temporal, ast.Temporal2)):
             errors = 0
             if causal_clause and e.op in _FUTURE_TO_PAST:
@@ -358,6 +377,25 @@ class Checker:
             raise _Unresolved
         return node
 
+    def clause_condition(self, clause: ast.Clause, name: str) -> ir.Formula:
+        return self.limited(self.condition(clause.value, name), clause.span, f"`{name}`")
+
+    def limited(self, node: ir.Formula, span: Span, what: str) -> ir.Formula:
+        """``node`` if its evaluators can walk it: E001 at ``span`` where formulas used through
+        formulas nest too deep, or expand (a formula used twice counts twice) too far."""
+        depth, size = ir.measure(node, self._measure_memo)
+        if depth > MAX_FORMULA_DEPTH:
+            self.d.add("E001", f"{what} nests {depth} operators deep, counting the formulas it uses; "
+                       f"the limit is {MAX_FORMULA_DEPTH}", span, hint="a chain of `and` or `or` does not count: "
+                       "write long conditions as such chains rather than nesting them")
+            raise _Unresolved
+        if size > MAX_FORMULA_SIZE:
+            self.d.add("E001", f"{what} expands to {size:,} operators, counting a formula each time it is used; "
+                       f"the limit is {MAX_FORMULA_SIZE:,}", span,
+                       hint="a formula used twice in one condition is evaluated twice: use it once")
+            raise _Unresolved
+        return node
+
     def formula_ir(self, name: str) -> Optional[ir.Formula]:
         if name in self._formula_ir:
             return self._formula_ir[name]
@@ -368,7 +406,7 @@ class Checker:
             return None
         self._formula_stack.append(name)
         try:
-            node = self.condition(decl.body)
+            node = self.limited(self.condition(decl.body), decl.name_span, f"formula '{name}'")
         except _Unresolved:
             node = None
         finally:
@@ -540,27 +578,9 @@ class Checker:
                            self.dt, kind, equations, simulator, integrator, sys.span, dyn_span)
 
     def _let_order(self, decls: dict[str, ast.LetDecl]) -> list[str]:
-        order: list[str] = []
-        state: dict[str, int] = {}
-
-        def visit(name: str) -> bool:
-            if state.get(name) == 2:
-                return True
-            if state.get(name) == 1:
-                self.d.add("E120", f"let '{name}' is defined in terms of itself", decls[name].name_span)
-                return False
-            state[name] = 1
-            ok = True
-            for n in names_in(decls[name].value):
-                if n.id in decls and not visit(n.id):
-                    ok = False
-            state[name] = 2
-            if ok:
-                order.append(name)
-            return ok
-
-        for name in decls:
-            visit(name)
+        order, cyclic = dependency_order(list(decls), lambda n: (m.id for m in names_in(decls[n].value) if m.id in decls))
+        for name in cyclic:
+            self.d.add("E120", f"let '{name}' is defined in terms of itself", decls[name].name_span)
         return order
 
     def check_dynamics(self, sys: ast.System):
@@ -746,9 +766,18 @@ class Checker:
 
     # ------------------------------------------------------------------ formulas and tasks
     def check_formulas(self) -> None:
-        for f in self.m.formulas:
-            if self.kinds.get(f.name, (None, None))[1] != f.name_span:
-                continue
+        # In dependency order, so that a formula's references are built before it and building
+        # one never recurses through a chain of formulas (which may be as long as the file).
+        decls = {f.name: f for f in self.m.formulas if self.kinds.get(f.name, (None, None))[1] == f.name_span}
+        order, cyclic = dependency_order(
+            list(decls), lambda n: (m.id for m in nodes_in(decls[n].body) if isinstance(m, ast.Name) and m.id in decls))
+        for name in cyclic:
+            self.d.add("E120", f"formula '{name}' is defined in terms of itself", decls[name].name_span)
+        for name in decls:
+            if name not in order:  # on a cycle, or using one (reported there)
+                self._formula_ir[name] = None
+        for name in order:
+            f = decls[name]
             node = self.formula_ir(f.name)
             if node is not None:
                 self.formulas[f.name] = FormulaModel(f.name, node, f.span)
@@ -776,8 +805,8 @@ class Checker:
                 errors += 1
                 return default
 
-        asap = attempt(self.condition, clauses["asap"].value, "asap") if "asap" in clauses else None
-        avoid = attempt(self.condition, clauses["avoid"].value, "avoid") if "avoid" in clauses else None
+        asap = attempt(self.clause_condition, clauses["asap"], "asap") if "asap" in clauses else None
+        avoid = attempt(self.clause_condition, clauses["avoid"], "avoid") if "avoid" in clauses else None
         deadline = attempt(self.positive_steps, clauses["deadline"].value, "the deadline") if "deadline" in clauses else None
         if deadline is not None and deadline > MAX_DEADLINE:
             # Every episode, evaluation and oracle horizon is this long: beyond it nothing finishes.
@@ -934,6 +963,46 @@ class Checker:
         # on it so that a file's problems are all reported at once, and the caller discards it.
         return ProgramModel(self.m.file, self.source, system, dict(self.regions), dict(self.formulas), tasks,
                             frozenset(self.used), dict(self.kinds))
+
+
+def dependency_order(names: list[str], deps: Callable[[str], Iterable[str]]) -> tuple[list[str], list[str]]:
+    """``names`` ordered so that each comes after those it depends on, and the names at which a
+    cycle was found. A name on a cycle, or depending on one, is left out of the order. A
+    depth-first search with an explicit stack: a chain of definitions may be as long as the file."""
+    VISITING, DONE, FAILED = 1, 2, 3
+    state: dict[str, int] = {}
+    order: list[str] = []
+    cyclic: list[str] = []
+    for root in names:
+        if root in state:
+            continue
+        state[root] = VISITING
+        stack = [(root, iter(deps(root)))]
+        failed: set[str] = set()
+        while stack:
+            name, pending = stack[-1]
+            for d in pending:
+                seen = state.get(d)
+                if seen is None:
+                    state[d] = VISITING
+                    stack.append((d, iter(deps(d))))
+                    break
+                if seen == VISITING:  # back to a name being defined: a cycle through it
+                    if d not in cyclic:
+                        cyclic.append(d)
+                    failed.add(name)
+                elif seen == FAILED:
+                    failed.add(name)
+            else:
+                stack.pop()
+                if name in failed:
+                    state[name] = FAILED
+                    if stack:
+                        failed.add(stack[-1][0])
+                else:
+                    state[name] = DONE
+                    order.append(name)
+    return order, cyclic
 
 
 def _regions_of(e: ast.Expr) -> tuple[str, ...]:

@@ -272,10 +272,13 @@ _MATH = SimpleNamespace(
 
 
 def nodes_in(e: ast.Expr) -> Iterable[ast.Expr]:
-    """Every node of an expression (formulas included), in source order."""
-    yield e
-    for child in _children(e):
-        yield from nodes_in(child)
+    """Every node of an expression (formulas included), in source order (an explicit stack:
+    a chain of 10,000 terms is 10,000 deep)."""
+    stack = [e]
+    while stack:
+        node = stack.pop()
+        yield node
+        stack.extend(reversed(_children(node)))
 
 
 def names_in(e: ast.Expr) -> Iterable[ast.Name]:
@@ -298,20 +301,42 @@ def _children(e) -> tuple:
 def degree(e: ast.Expr, symbols: Symbols) -> float:
     """Polynomial degree in states and actions (constants 0); ``inf`` when not polynomial.
 
-    Used to check that ``integrator exact`` is given linear (affine) dynamics.
-    """
+    Used to check that ``integrator exact`` is given linear (affine) dynamics. A post-order walk
+    with an explicit stack (lets followed, each once)."""
+    let_degree: dict[str, float] = {}
+    done: list[float] = []
+    stack: list[tuple[ast.Expr, bool]] = [(e, False)]
+    while stack:
+        node, expanded = stack.pop()
+        if isinstance(node, ast.Name) and node.id in symbols.lets and node.id not in symbols.states:
+            if node.id in let_degree:
+                done.append(let_degree[node.id])
+            elif expanded:
+                let_degree[node.id] = done[-1]
+            else:
+                stack.append((node, True))
+                stack.append((symbols.lets[node.id], False))
+            continue
+        kids = _children(node) if isinstance(node, (ast.Unary, ast.Binary, ast.Call)) else ()
+        if not expanded and kids:
+            stack.append((node, True))
+            stack.extend((k, False) for k in reversed(kids))
+            continue
+        args = [done.pop() for _ in kids][::-1]
+        done.append(_degree_of(node, args, symbols))
+    return done[0]
+
+
+def _degree_of(e: ast.Expr, args: list[float], symbols: Symbols) -> float:
+    """The degree of ``e`` from its children's degrees ``args``."""
     if isinstance(e, (ast.Number, ast.Infinity)):
         return 0
     if isinstance(e, ast.Name):
-        if e.id in symbols.states or e.id in symbols.actions:
-            return 1
-        if e.id in symbols.lets:
-            return degree(symbols.lets[e.id], symbols)
-        return 0
+        return 1 if (e.id in symbols.states or e.id in symbols.actions) else 0
     if isinstance(e, ast.Unary):
-        return degree(e.arg, symbols)
+        return args[0]
     if isinstance(e, ast.Binary):
-        a, b = degree(e.left, symbols), degree(e.right, symbols)
+        a, b = args
         if e.op in "+-":
             return max(a, b)
         if e.op == "*":
@@ -323,11 +348,8 @@ def degree(e: ast.Expr, symbols: Symbols) -> float:
                 return math.inf
             if a == 0:
                 return 0
-            try:
-                p = evaluate_constant(e.right, symbols.consts)
-            except Exception:  # pragma: no cover - defensive
-                return math.inf
+            p = evaluate_constant(e.right, symbols.consts)
             return a * p if p >= 0 and float(p).is_integer() else math.inf
     if isinstance(e, ast.Call):
-        return 0 if all(degree(a, symbols) == 0 for a in e.args) else math.inf
+        return 0 if all(a == 0 for a in args) else math.inf
     return math.inf

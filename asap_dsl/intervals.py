@@ -61,7 +61,12 @@ class Interval:
         o = Interval.of(o)
         if o.lo <= 0.0 <= o.hi:  # the divisor may be zero: no finite enclosure
             return Interval(-math.inf, math.inf)
-        return self * Interval(1.0 / o.hi, 1.0 / o.lo)
+        # The quotients of the corners, not self * (1 / o): 1 / 2e-309 overflows where 0.25 / 2e-309
+        # does not. inf / inf has no value: then the reciprocal's enclosure (0 * inf is 0 there).
+        q = [a / b for a in (self.lo, self.hi) for b in (o.lo, o.hi)]
+        if any(math.isnan(v) for v in q):
+            return self * Interval(1.0 / o.hi, 1.0 / o.lo)
+        return Interval(min(q), max(q))
 
     def __rtruediv__(self, o):
         return Interval.of(o) / self

@@ -108,12 +108,21 @@ def test_keyword_after_an_operator_is_reported_at_the_keyword():
     ("always p and q", "(always p) and q", "always (p and q)"),
     ("not p and q", "(not p) and q", "not (p and q)"),
     ("eventually[0, 3] always p", "eventually[0, 3] (always p)", "(eventually[0, 3] p)"),
-    ("p or q or r", "(p or q) or r", "p or (q or r)"),
-    ("p and q and r", "(p and q) and r", "p and (q and r)"),
+    ("p or q or r", "(p or q) or r", "p or (q and r)"),
+    ("p and q and r", "(p and q) and r", "p and (q or r)"),
 ])
 def test_precedence(written, means, not_means):
     assert text(written) == text(means)
     assert text(written) != text(not_means)
+
+
+def test_chains_of_and_and_or_are_one_chain_however_grouped():
+    # min and max are associative: (p and q) and r, p and (q and r), p and q and r are one chain
+    for written in ("p and q and r", "(p and q) and r", "p and (q and r)"):
+        assert text(written) == text("p and q and r") == "x > 0 and y > 0 and in goal"
+        assert len(ir.operands(node(written))) == 3
+    assert text("(p or q) or r") == text("p or (q or r)") == "x > 0 or y > 0 or in goal"
+    assert text("(p and q) or r") == "(x > 0 and y > 0) or in goal"
 
 
 def test_precedence_structure():

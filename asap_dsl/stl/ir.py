@@ -157,6 +157,63 @@ def children(node: Formula) -> tuple[Formula, ...]:
     return (node.left, node.right)
 
 
+def operands(node: Formula) -> list[Formula]:
+    """The operands of the chain of ``and`` (or of ``or``) at ``node``, in order: the leaves of
+    the largest subtree of that one operator (``[node]`` for any other node)."""
+    if not isinstance(node, (And, Or)):
+        return [node]
+    cls, out, stack = type(node), [], [node]
+    while stack:
+        n = stack.pop()
+        if type(n) is cls:
+            stack += [n.right, n.left]
+        else:
+            out.append(n)
+    return out
+
+
+def balanced(cls: type, items: list[Formula], memo: Optional[dict] = None, slack: int = 64) -> Formula:
+    """``items[0] cls items[1] cls ...`` (``And`` or ``Or``), grouped so that evaluators can walk
+    it: min and max are associative, so any grouping has the same value. Written left to right
+    while that stays within ``slack`` levels deep; past that, the whole chain
+    (formulas defined through formulas included) is rebuilt as a balanced tree, log2(n) deep.
+    ``memo`` is :func:`measure`'s, so that a chain extended formula by formula costs little."""
+    memo = {} if memo is None else memo
+    out = items[0]
+    for item in items[1:]:
+        out = cls(out, item)
+    if measure(out, memo)[0] <= slack:
+        return out
+    flat = [leaf for item in items for leaf in (operands(item) if type(item) is cls else [item])]
+    flat = list({id(leaf): leaf for leaf in flat}.values())  # a and a is a: shared formulas once
+    while len(flat) > 1:
+        paired = [cls(a, b) for a, b in zip(flat[::2], flat[1::2])]
+        flat = paired + ([flat[-1]] if len(flat) % 2 else [])
+    return flat[0]
+
+
+def measure(node: Formula, memo: Optional[dict] = None) -> tuple[int, int]:
+    """(depth, size) of ``node`` as the evaluators see it: operators on the longest path to an
+    atom, and nodes counted as a tree (a formula used twice counts twice). Linear in the shared
+    structure (``memo``: id -> (node, depth, size), reusable across calls) and without recursion."""
+    memo = {} if memo is None else memo
+    stack = [(node, False)]
+    while stack:
+        n, expanded = stack.pop()
+        if id(n) in memo:
+            continue
+        kids = children(n)
+        if kids and not expanded:
+            stack.append((n, True))
+            stack.extend((c, False) for c in kids if id(c) not in memo)
+            continue
+        d = 1 + max((memo[id(c)][1] for c in kids), default=-1)
+        size = 1 + sum(memo[id(c)][2] for c in kids)
+        memo[id(n)] = (n, d, size)
+    _, d, size = memo[id(node)]
+    return d, size
+
+
 def is_causal(node: Formula) -> bool:
     """True when no future operator occurs: the value at t depends on steps <= t only."""
     return not isinstance(node, FUTURE_OPERATORS) and all(is_causal(c) for c in children(node))
@@ -186,9 +243,10 @@ def to_text(node: Formula) -> str:
         return "true" if node.value else "false"
     if isinstance(node, Not):
         return f"not {_wrap(node.arg)}"
-    if isinstance(node, (And, Or, Implies)):
-        op = {And: "and", Or: "or", Implies: "->"}[type(node)]
-        return f"{_wrap(node.left)} {op} {_wrap(node.right)}"
+    if isinstance(node, (And, Or)):  # a chain, however it is grouped: a and b and c
+        return f" {type(node).__name__.lower()} ".join(_wrap(c) for c in operands(node))
+    if isinstance(node, Implies):
+        return f"{_wrap(node.left)} -> {_wrap(node.right)}"
     if isinstance(node, UNARY_TEMPORAL):
         name = type(node).__name__.lower()
         return f"{name}{node.interval} {_wrap(node.arg)}"
