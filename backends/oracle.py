@@ -51,8 +51,9 @@ How
   the replay reaches ``asap`` at step N, never satisfies ``avoid`` and never leaves the state space.
 
 Per-state statuses: ``solved`` (a minimum N found), ``infeasible`` (no N up to the deadline;
-clean solves), ``solver_failed`` (no N found and IPOPT failed at some N), ``nan`` (a non-finite
-initial state or dynamics). Solver failures never raise.
+clean solves), ``solver_failed`` (no N found and IPOPT failed at some N), ``timeout`` (the
+search used up its time, :data:`STATE_TIME_LIMIT` by default, before deciding: no N up to
+``horizon``), ``nan`` (a non-finite initial state or dynamics). Solver failures never raise.
 """
 
 from __future__ import annotations
@@ -82,6 +83,9 @@ FEASIBLE_TOL = 1e-7
 GOOD_STATUSES = ("Solve_Succeeded", "Solved_To_Acceptable_Level")
 #: Extra initial guesses tried (local problems only) before a horizon is declared infeasible.
 RESTARTS = 1
+#: Seconds of horizon search per initial state before it is reported as ``timeout`` (a deadline
+#: of 1,000,000 steps with an unreachable goal would otherwise search for days).
+STATE_TIME_LIMIT = 120.0
 #: Relative widening of the interval enclosure per step (covers floating-point rounding).
 INTERVAL_SLACK = 1e-9
 
@@ -163,7 +167,7 @@ class StateResult:
     index: int
     x0: np.ndarray
     steps: Optional[int]          # the minimum N, None if none up to the deadline
-    status: str                   # solved | infeasible | solver_failed | nan
+    status: str                   # solved | infeasible | solver_failed | timeout | nan
     verified: bool
     failures: int = 0             # IPOPT solves that failed (not a clean return status)
     solves: int = 0               # NLPs solved for this state (restarts included)
@@ -173,6 +177,7 @@ class StateResult:
     seconds: float = 0.0
     restarts: int = 0             # of the solves, those from extra initial guesses
     source: Optional[str] = None  # set by tighten(): the task whose action sequence this is
+    horizon: Optional[int] = None  # timeout: the last N searched (none feasible up to it)
 
     def to_dict(self, with_actions: bool = False) -> dict:
         d = {"index": self.index, "x0": [float(v) for v in self.x0], "steps": self.steps,
@@ -181,6 +186,8 @@ class StateResult:
              "seconds": round(self.seconds, 6)}
         if self.source is not None:
             d["source"] = self.source
+        if self.horizon is not None:
+            d["horizon"] = self.horizon
         if with_actions:
             d["actions"] = None if self.actions is None else self.actions.tolist()
         return d
@@ -191,17 +198,19 @@ class StateResult:
         return cls(d["index"], np.asarray(d["x0"], float), d["steps"], d["status"], d["verified"],
                    d.get("failures", 0), d.get("solves", 0), d.get("lower_bound", 0),
                    None if acts is None else np.asarray(acts, float), None, d.get("seconds", 0.0),
-                   d.get("restarts", 0), d.get("source"))
+                   d.get("restarts", 0), d.get("source"), d.get("horizon"))
 
 
 class Oracle:
     """Minimum-time oracle for one task of a program (built once, solved for many states)."""
 
     def __init__(self, prog, task: Optional[str] = None, ipopt_options: Optional[dict] = None,
-                 restarts: Optional[int] = None, interval_bound: bool = True):
+                 restarts: Optional[int] = None, interval_bound: bool = True,
+                 time_limit: float = STATE_TIME_LIMIT):
         """``restarts``: extra initial guesses per horizon before it is declared infeasible
         (default :data:`RESTARTS` for non-linear dynamics, 0 for linear ones);
-        ``interval_bound``: start the N-search of non-linear systems at the interval lower bound."""
+        ``interval_bound``: start the N-search of non-linear systems at the interval lower bound;
+        ``time_limit``: seconds of search per state (each IPOPT solve is capped by it too)."""
         import casadi as ca
 
         self.ca = ca
@@ -225,7 +234,10 @@ class Oracle:
         self.n, self.m = sys_.n_state, sys_.n_action
         self.step_np = numpy_step(sys_)
         self.step_ca = casadi_step(sys_)
-        self.opts = dict(IPOPT_OPTIONS, **(ipopt_options or {}))
+        if not (time_limit > 0 and math.isfinite(time_limit)):
+            raise ValueError(f"the time limit per state must be a positive number of seconds; got {time_limit}")
+        self.time_limit = float(time_limit)
+        self.opts = dict(IPOPT_OPTIONS, **{"ipopt.max_cpu_time": self.time_limit}, **(ipopt_options or {}))
         self.low, self.high = sys_.state_low, sys_.state_high
         self.ulow, self.uhigh = sys_.action_low, sys_.action_high
         self.linear = self._is_linear()
@@ -702,6 +714,9 @@ class Oracle:
         failures = solves = restarts = 0
         own: dict[int, dict] = {}
         for N in range(lb, self.deadline + 1):
+            if time.perf_counter() - start > self.time_limit:
+                return StateResult(index, x0, None, "timeout", False, failures, solves, lb,
+                                   seconds=time.perf_counter() - start, restarts=restarts, horizon=N - 1)
             status, U, failed, used, extra = self._try(N, x0, own)
             solves += used
             restarts += extra
@@ -778,7 +793,7 @@ class OracleReport:
         return np.array([np.inf if r.steps is None else r.steps for r in self.results], float)
 
     def counts(self) -> dict[str, int]:
-        out = {"solved": 0, "infeasible": 0, "solver_failed": 0, "nan": 0}
+        out = {"solved": 0, "infeasible": 0, "solver_failed": 0, "timeout": 0, "nan": 0}
         for r in self.results:
             out[r.status] = out.get(r.status, 0) + 1
         out["unverified"] = sum(1 for r in self.results if r.status == "solved" and not r.verified)
@@ -875,25 +890,27 @@ def _worker(payload):
     """Process entry: re-load the spec from its text (programs hold compiled closures)."""
     import asap_dsl
 
-    source, name, task, states, indices, ipopt, restarts, interval_bound = payload
+    source, name, task, states, indices, ipopt, restarts, interval_bound, time_limit = payload
     prog = asap_dsl.loads(source, name)
-    oracle = Oracle(prog, task, ipopt, restarts, interval_bound)
+    oracle = Oracle(prog, task, ipopt, restarts, interval_bound, time_limit)
     return [r.to_dict(with_actions=True) for r in oracle.solve_many(states, indices)]
 
 
 def run(prog, task: Optional[str] = None, episodes: int = 1000, seed: int = EVAL_SEED, workers: int = 1,
         states: Optional[np.ndarray] = None, ipopt_options: Optional[dict] = None,
-        restarts: Optional[int] = None, interval_bound: bool = True) -> OracleReport:
+        restarts: Optional[int] = None, interval_bound: bool = True,
+        time_limit: float = STATE_TIME_LIMIT) -> OracleReport:
     """The oracle over ``episodes`` evaluation states (or the given ``states``).
 
     ``restarts`` / ``interval_bound``: see :class:`Oracle` (defaults: :data:`RESTARTS` extra
     initial guesses on non-linear systems, and the interval lower bound there).
 
     ``workers > 1`` splits the nearest-neighbour tour into contiguous chunks solved in separate
-    processes (each builds its own solvers).
+    processes (each builds its own solvers). ``time_limit``: seconds of search per state, then
+    ``timeout``.
     """
     start = time.perf_counter()
-    oracle = Oracle(prog, task, ipopt_options, restarts, interval_bound)  # validates system and task up front
+    oracle = Oracle(prog, task, ipopt_options, restarts, interval_bound, time_limit)  # validates system and task up front
     t = oracle.task.model
     if states is None:
         states = evaluation_states(prog.system, episodes, seed=seed, avoid=t.avoid)
@@ -910,7 +927,7 @@ def run(prog, task: Optional[str] = None, episodes: int = 1000, seed: int = EVAL
         order = nearest_neighbour_order(states, prog.system)
         chunks = np.array_split(np.asarray(order), workers)
         payloads = [(prog.source, prog.file, oracle.task_name, states[c], [int(i) for i in c], ipopt_options,
-                     restarts, interval_bound) for c in chunks if len(c)]
+                     restarts, interval_bound, time_limit) for c in chunks if len(c)]
         method = "fork" if "fork" in mp.get_all_start_methods() else "spawn"
         with mp.get_context(method).Pool(len(payloads)) as pool:
             parts = pool.map(_worker, payloads)
@@ -928,24 +945,36 @@ def minimum_steps(prog, x0: Sequence[float], task: Optional[str] = None) -> Stat
     return Oracle(prog, task).solve(x0)
 
 
-def deadline_infeasible(prog, task_name: Optional[str] = None, samples: int = 32,
-                        seed: int = 0, workers: int = 2) -> list[tuple[np.ndarray, str]]:
-    """Sampled initial states that cannot reach ``asap`` within the deadline (for ``lint --deep``).
+#: ``lint --deep`` searches at most about this many seconds per task (split over its samples).
+DEEP_TASK_SECONDS = 60.0
 
-    Returns ``(state, reason)`` pairs, the reason a few words; empty when every sample reaches the
-    goal in time. Raises :class:`OracleUnsupported` for a black-box system or a non-region task
-    (the caller decides whether to say so or stay silent).
-    """
-    oracle = Oracle(prog, task_name)
+
+def deadline_infeasible(prog, task_name: Optional[str] = None, samples: int = 32, seed: int = 0,
+                        workers: int = 2, seconds: float = DEEP_TASK_SECONDS) -> list[tuple[np.ndarray, str, str]]:
+    """Sampled initial states that were not shown to reach ``asap`` within the deadline (for
+    ``lint --deep``): ``(state, status, reason)``, the status ``infeasible``, ``solver_failed``,
+    ``nan`` or ``timeout`` (the search of that state used up its share of ``seconds``, the
+    time for the task), the reason a few words. Empty when every sample reaches the goal
+    in time. Raises :class:`OracleUnsupported` for a black-box system or a non-region task."""
+    workers = max(1, min(workers, samples))
+    per_state = max(0.5, seconds * workers / max(1, samples))
+    oracle = Oracle(prog, task_name, time_limit=per_state)
     states = evaluation_states(prog.system, samples, seed=seed, avoid=oracle.task.model.avoid)
-    report = run(prog, oracle.task_name, states=states, workers=workers)
+    report = run(prog, oracle.task_name, states=states, workers=workers, time_limit=per_state)
     how = {
         "infeasible": "proved by a convex problem" if oracle.label == "exact" else "a local search (IPOPT) found no way",
         "solver_failed": "the solver failed",
         "nan": "the dynamics give non-finite values",
     }
-    return [(r.x0, how[r.status]) for r in report.results if r.status in how]
+    out = []
+    for r in report.results:
+        if r.status == "timeout":
+            out.append((r.x0, r.status, f"no way found in {per_state:.3g} s of search, which reached "
+                        f"{r.horizon:,} of the {oracle.deadline:,} steps"))
+        elif r.status in how:
+            out.append((r.x0, r.status, how[r.status]))
+    return out
 
 
-__all__ = ["MARGIN", "Oracle", "OracleReport", "OracleUnsupported", "StateResult", "deadline_infeasible",
+__all__ = ["DEEP_TASK_SECONDS", "MARGIN", "STATE_TIME_LIMIT", "Oracle", "OracleReport", "OracleUnsupported", "StateResult", "deadline_infeasible",
            "minimum_steps", "nearest_neighbour_order", "run", "tighten"]

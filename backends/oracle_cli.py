@@ -14,7 +14,8 @@ import json
 import sys
 from typing import Optional, TextIO
 
-from asap_dsl.cli import episodes_int, positive_int, seed_int
+from asap_dsl.backends.oracle import STATE_TIME_LIMIT
+from asap_dsl.cli import episodes_int, positive_amount, positive_int, seed_int
 from asap_dsl.sampling import EVAL_SEED
 
 
@@ -28,6 +29,8 @@ def add_oracle_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--force-workers", action="store_true", help="allow more workers than cores")
     parser.add_argument("--seed", type=seed_int, default=EVAL_SEED,
                         help=f"seed of the initial states (default {EVAL_SEED}, as `asapc eval`)")
+    parser.add_argument("--state-time-limit", type=positive_amount("seconds"), default=STATE_TIME_LIMIT, metavar="SECONDS",
+                        help=f"search time per initial state before it is reported as timeout (default {STATE_TIME_LIMIT:g})")
     parser.add_argument("--format", choices=("text", "json"), default="text", help="output format")
     parser.add_argument("--states", action="store_true",
                         help="with --format json: include every state's x0, steps, status and actions")
@@ -66,8 +69,11 @@ def render_text(report, out: TextIO) -> None:
             out.write(f"  {k:>5}  {hist[k]:>6}  {bar}\n")
     else:
         out.write("no state reaches the goal\n")
-    out.write(f"\n  unreachable within the deadline: {d['unreachable_within_deadline']}/{n}"
-              f" (infeasible {c['infeasible']}, solver failed {c['solver_failed']}, nan {c['nan']})\n")
+    out.write(f"\n  no way found within the deadline: {d['unreachable_within_deadline']}/{n}"
+              f" (infeasible {c['infeasible']}, solver failed {c['solver_failed']}, timeout {c['timeout']}, nan {c['nan']})\n")
+    if c["timeout"]:
+        out.write(f"  timeout: {c['timeout']} state(s) undecided after their search time (--state-time-limit); "
+                  "the ceiling counts them as not reached, so it may be low\n")
     out.write(f"  solver failures: {c['solver_failures']} solves on {c['states_with_solver_failures']} states; "
               f"unverified by replay: {c['unverified']}\n")
     t = d.get("tightened")
@@ -108,7 +114,8 @@ def oracle_command(args: argparse.Namespace, out: Optional[TextIO] = None, err: 
     reports = []
     for t in tasks:
         try:
-            rep = run(prog, t, episodes=args.episodes, seed=args.seed, workers=args.workers)
+            rep = run(prog, t, episodes=args.episodes, seed=args.seed, workers=args.workers,
+                      time_limit=getattr(args, "state_time_limit", STATE_TIME_LIMIT))
         except OracleUnsupported as e:
             err.write(f"error: {args.file}: task {t}: {e}\n")
             return 1

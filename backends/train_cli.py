@@ -13,7 +13,7 @@ import sys
 import time
 from typing import Optional, TextIO
 
-from asap_dsl.cli import episodes_int, positive_int as _positive_int, seed_int
+from asap_dsl.cli import episodes_int, positive_amount, positive_int as _positive_int, seed_int
 from asap_dsl.runs import json_safe
 from asap_dsl.sampling import EVAL_SEED
 
@@ -31,14 +31,7 @@ def _steps(text: str) -> int:
     return int(value)
 
 
-def _minutes(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected minutes, got '{text}'") from None
-    if not 0 < value < 1e6:
-        raise argparse.ArgumentTypeError(f"expected a positive number of minutes, got '{text}'")
-    return value
+_minutes = positive_amount("minutes")
 
 
 def _tolerances(text: str) -> list[int]:

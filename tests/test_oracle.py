@@ -8,6 +8,8 @@ import json
 import math
 from pathlib import Path
 
+import time
+
 import numpy as np
 import pytest
 
@@ -163,8 +165,25 @@ def test_unreachable_goal_is_reported():
     assert rep.to_dict()["unreachable_within_deadline"] == 1
     assert rep.ceiling(5)["count"] == 1
     bad = O.deadline_infeasible(prog, "far", samples=4)
-    assert len(bad) == 4 and "proved by a convex problem" in bad[0][1]
+    assert len(bad) == 4 and bad[0][1] == "infeasible" and "proved by a convex problem" in bad[0][2]
     assert O.deadline_infeasible(prog, "reach", samples=4) == []
+
+
+def test_the_search_of_a_state_is_bounded_in_time():
+    # an unreachable goal with a deadline of a million steps: a timeout, not days of search
+    # (goal and a disc around the start are disjoint: no horizon is ever feasible)
+    prog = asap_dsl.loads(PLANE + "region start = ball([-5, 0], 1)\n"
+                          "task never { asap in goal and in start  deadline 1000000 }\n")
+    far = "never"
+    t0 = time.perf_counter()
+    r = O.Oracle(prog, far, time_limit=1.0).solve([-5.0, 0.0])
+    assert time.perf_counter() - t0 < 5
+    assert (r.steps, r.status, r.verified) == (None, "timeout", False) and r.horizon >= 1
+    rep = O.run(prog, far, states=np.array([[-5.0, 0.0]]), time_limit=0.5)
+    assert rep.counts()["timeout"] == 1 and rep.to_dict()["states"][0]["horizon"] >= 1
+    assert rep.ceiling(5)["count"] == 0
+    with pytest.raises(ValueError, match="positive number of seconds"):
+        O.Oracle(prog, far, time_limit=0)
 
 
 def test_disjunctive_goal_and_nan_state():
