@@ -14,7 +14,7 @@ import sys
 from typing import Optional, Sequence
 
 from . import __version__
-from .diagnostics import Diagnostic, SpecError, format_diagnostic, format_report, printable
+from .diagnostics import SHOWN, Diagnostic, SpecError, format_report, printable, shorten
 from .program import Program, analyse, loads, read_source
 from .runs import json_safe
 from .stl import ir
@@ -50,7 +50,7 @@ def cmd_lint(args: argparse.Namespace) -> int:
                           "diagnostics": [d.as_dict() for d in all_diags]}, indent=2))
     else:
         if all_diags:
-            print(format_report(all_diags, sources))
+            print(format_report(all_diags, sources, args.max_diagnostics))
         n = len(args.files)
         print(f"{n} file{'s' if n != 1 else ''} checked: {errors} error{'s' if errors != 1 else ''}, "
               f"{warnings} warning{'s' if warnings != 1 else ''}")
@@ -103,6 +103,12 @@ def _table(rows: list[list[str]], header: list[str]) -> list[str]:
     return [line(header), "  " + "  ".join("-" * w for w in widths)] + [line(r) for r in rows]
 
 
+def _formula_text(node: ir.Formula) -> str:
+    """A formula with the formulas it uses written out, cut in the middle past 400 characters
+    (1,000 formulas defined through each other would print megabytes)."""
+    return shorten(ir.to_text(node), 400)
+
+
 def show_data(prog: Program, only_task: Optional[str] = None) -> dict:
     """Everything ``asapc show`` prints, as plain data (also its JSON output)."""
     sys_ = prog.system
@@ -120,7 +126,7 @@ def show_data(prog: Program, only_task: Optional[str] = None) -> dict:
             "lets": {k: prog.model.declared[k][1].line for k in sys_.lets},
         },
         "regions": {n: r.describe() for n, r in prog.model.regions.items()},
-        "formulas": {n: ir.to_text(f.ir) for n, f in prog.model.formulas.items()},
+        "formulas": {n: _formula_text(f.ir) for n, f in prog.model.formulas.items()},
         "tasks": {},
     }
     for name in prog.tasks:
@@ -129,9 +135,9 @@ def show_data(prog: Program, only_task: Optional[str] = None) -> dict:
         t = prog.model.tasks[name]
         lo, hi = t.rho_bounds
         data["tasks"][name] = {
-            "asap": ir.to_text(t.asap),
-            "avoid": None if t.avoid is None else ir.to_text(t.avoid),
-            "specification": ir.to_text(t.spec),
+            "asap": _formula_text(t.asap),
+            "avoid": None if t.avoid is None else _formula_text(t.avoid),
+            "specification": _formula_text(t.spec),
             "horizon_steps": ir.horizon(t.spec),
             "deadline_steps": t.deadline,
             "deadline_seconds": t.deadline * sys_.dt,
@@ -194,9 +200,9 @@ def cmd_show(args: argparse.Namespace) -> int:
             out.append(f"  r_sat          {_fmt(t['r_sat'])}  (given; theorem's bound {_fmt(t['r_sat_bound'])})")
         if t["train"]:
             out.append("  train          " + ", ".join(f"{k} = {v}" for k, v in t["train"].items()))
-    for w in prog.warnings:
+    if prog.warnings:
         out.append("")
-        out.append(format_diagnostic(w, prog.source))
+        out.append(format_report(prog.warnings, {prog.file: prog.source}))
     print("\n".join(printable(line) for line in "\n".join(out).split("\n")))  # names may hold ESC bytes
     return 0
 
@@ -232,6 +238,8 @@ def build_parser() -> argparse.ArgumentParser:
     lint.add_argument("--strict", action="store_true", help="warnings fail too (exit 1)")
     lint.add_argument("--deep", action="store_true", help="also sample initial states and check with the oracle "
                       "that the deadline is feasible (ode and map systems)")
+    lint.add_argument("--max-diagnostics", type=natural_int, default=SHOWN, metavar="N",
+                      help=f"print the first N diagnostics in full and count the rest (default {SHOWN}; 0: all)")
     lint.add_argument("--samples", type=positive_int, default=16, help="initial states sampled by --deep (default 16)")
     lint.add_argument("--deep-seconds", type=positive_amount("seconds"), default=60.0, metavar="SECONDS",
                       help="search time of --deep per task, shared by its samples (default 60)")
@@ -317,6 +325,17 @@ def positive_amount(unit: str, limit: float = 1e6):
     return parse
 
 
+def natural_int(text: str) -> int:
+    """argparse type: a whole number of at least 0."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a whole number, got '{text}'") from None
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"expected 0 or more, got {value}")
+    return value
+
+
 def positive_int(text: str) -> int:
     """argparse type: a whole number of at least 1, in plain words otherwise."""
     try:
@@ -359,4 +378,8 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
 
 
 if __name__ == "__main__":  # pragma: no cover
-    sys.exit(main())
+    # `python -m asap_dsl.cli` runs this file as __main__: call the package's own module, so that
+    # its exception classes are the ones the subcommands import (not a second copy).
+    from asap_dsl.cli import main as _main
+
+    sys.exit(_main())

@@ -111,9 +111,21 @@ class Diagnostic:
         }
 
 
+MESSAGE = 500  # characters of a message or hint (a name of 2 MB quoted in one is cut)
+
+
+def shorten(text: str, limit: int = MESSAGE) -> str:
+    """``text`` cut in the middle to about ``limit`` characters, saying how much was left out."""
+    if len(text) <= limit:
+        return text
+    head, tail = text[: limit * 2 // 3], text[-(limit // 4):]
+    return f"{head} …({len(text) - len(head) - len(tail):,} characters)… {tail}"
+
+
 def make(code: str, message: str, span: Span, file: str, hint: Optional[str] = None) -> Diagnostic:
     rule = RULES[code]
-    return Diagnostic(code, rule.severity, message, file, span.line, span.column, span.end_line, span.end_column, hint)
+    return Diagnostic(code, rule.severity, shorten(message), file, span.line, span.column, span.end_line,
+                      span.end_column, None if hint is None else shorten(hint))
 
 
 @dataclass
@@ -179,9 +191,30 @@ def format_diagnostic(d: Diagnostic, source: Optional[str], lines: Optional[list
     return "\n".join(out)
 
 
-def format_report(diagnostics: Iterable[Diagnostic], sources: dict[str, Optional[str]]) -> str:
+SHOWN = 100  # diagnostics printed in full by default (`asapc lint --max-diagnostics N`; 0: all)
+
+
+def format_report(diagnostics: Iterable[Diagnostic], sources: dict[str, Optional[str]],
+                  limit: Optional[int] = SHOWN) -> str:
+    """Every diagnostic formatted, or the first ``limit`` of them (errors before warnings) and a
+    line counting the rest by code: 10,000 unused regions are one line, not a megabyte."""
+    diagnostics = list(diagnostics)
+    shown = diagnostics
+    if limit and len(diagnostics) > limit:
+        keep = set(map(id, sorted(diagnostics, key=lambda d: not d.is_error)[:limit]))
+        shown = [d for d in diagnostics if id(d) in keep]
     split = {f: (s.splitlines() if s is not None else None) for f, s in sources.items()}
-    return "\n".join(format_diagnostic(d, sources.get(d.file), split.get(d.file)) for d in diagnostics)
+    out = [format_diagnostic(d, sources.get(d.file), split.get(d.file)) for d in shown]
+    if len(shown) < len(diagnostics):
+        kept = set(map(id, shown))
+        rest: dict[str, int] = {}
+        for d in diagnostics:
+            if id(d) not in kept:
+                rest[d.code] = rest.get(d.code, 0) + 1
+        counts = ", ".join(f"{n:,} {code}" for code, n in sorted(rest.items()))
+        out.append(f"... and {len(diagnostics) - len(shown):,} more ({counts}); "
+                   "`asapc lint --max-diagnostics 0` prints every one")
+    return "\n".join(out)
 
 
 class SpecError(Exception):

@@ -84,7 +84,7 @@ def test_compare_resumes_after_sigterm(tiny, tmp_path):
         if any(v["status"] == "finished" for v in m.values()) and len(m) >= 2:
             break
         time.sleep(0.2)
-    time.sleep(2.0)
+    time.sleep(0.5)  # into the second run (a run of 3000 steps takes a few seconds)
     proc.send_signal(signal.SIGTERM)
     _, err = proc.communicate(timeout=120)
     assert proc.returncode == 130, err
