@@ -290,7 +290,7 @@ class Checker:
                 raise _Unresolved
             if e.op == "implies":
                 return ir.Implies(*built)
-            return ir.balanced(ir.And if e.op == "and" else ir.Or, built, self._measure_memo)
+            return ir.balanced(ir.And if e.op == "and" else ir.Or, built)
         if isinstance(e, (ast.Temporal, ast.Temporal2)):
             errors = 0
             if causal_clause and e.op in _FUTURE_TO_PAST:
@@ -601,8 +601,9 @@ class Checker:
         given: dict[str, ast.Equation] = {}
         errors = 0
         prime = "'" if dyn.kind == "ode" else ""
+        known = set(state_names)  # looked up once per equation: a set, or 20,000 states cost seconds
         for eq in dyn.equations:
-            if eq.target not in state_names:
+            if eq.target not in known:
                 kind = self.kinds.get(eq.target, (None,))[0]
                 if kind is None:
                     sug = _closest(eq.target, state_names)

@@ -172,24 +172,52 @@ def operands(node: Formula) -> list[Formula]:
     return out
 
 
-def balanced(cls: type, items: list[Formula], memo: Optional[dict] = None, slack: int = 64) -> Formula:
-    """``items[0] cls items[1] cls ...`` (``And`` or ``Or``), grouped so that evaluators can walk
-    it: min and max are associative, so any grouping has the same value. Written left to right
-    while that stays within ``slack`` levels deep; past that, the whole chain
-    (formulas defined through formulas included) is rebuilt as a balanced tree, log2(n) deep.
-    ``memo`` is :func:`measure`'s, so that a chain extended formula by formula costs little."""
-    memo = {} if memo is None else memo
-    out = items[0]
-    for item in items[1:]:
-        out = cls(out, item)
-    if measure(out, memo)[0] <= slack:
-        return out
-    flat = [leaf for item in items for leaf in (operands(item) if type(item) is cls else [item])]
-    flat = list({id(leaf): leaf for leaf in flat}.values())  # a and a is a: shared formulas once
-    while len(flat) > 1:
-        paired = [cls(a, b) for a, b in zip(flat[::2], flat[1::2])]
-        flat = paired + ([flat[-1]] if len(flat) % 2 else [])
-    return flat[0]
+def balanced(cls: type, items: list[Formula]) -> Formula:
+    """``items[0] cls items[1] cls ...`` (``And`` or ``Or``) as a tree about log2(n) deep: min and
+    max are associative, so any grouping has the same value, and evaluators walk trees.
+
+    Items of the same operator (a chain built earlier, a formula used in a chain) are opened
+    along their left edge only, into subtrees that are kept whole; these are merged like the
+    digits of a binary counter (a tree absorbs its left neighbour while that is not larger).
+    Extending a chain of n operands by one therefore builds O(log n) new nodes: 20,000
+    formulas each defined through the previous one cost linear time, not quadratic."""
+    blocks: list[Formula] = []
+    seen: set[int] = set()
+    for item in items:
+        spine, n = [], item
+        while type(n) is cls:  # the left edge: n.right are whole subtrees, right to left
+            spine.append(n.right)
+            n = n.left
+        spine.append(n)
+        for block in reversed(spine):
+            if id(block) not in seen:  # a and a is a: a shared formula once
+                seen.add(id(block))
+                blocks.append(block)
+    stack: list[tuple[Formula, int]] = []  # (tree, operands), operands decreasing
+    for block in blocks:
+        tree, weight = block, _weight(block, cls)
+        while stack and stack[-1][1] <= weight:
+            left, w = stack.pop()
+            tree, weight = _join(cls, left, tree, w + weight), w + weight
+        stack.append((tree, weight))
+    while len(stack) > 1:  # the remaining trees (about log2(n) of them), paired up in order
+        paired = [(_join(cls, a, b, wa + wb), wa + wb) for (a, wa), (b, wb) in zip(stack[::2], stack[1::2])]
+        stack = paired + ([stack[-1]] if len(stack) % 2 else [])
+    return stack[0][0]
+
+
+def _join(cls: type, left: Formula, right: Formula, weight: int) -> Formula:
+    node = cls(left, right)
+    object.__setattr__(node, "_operands", weight)  # its operand count, kept for the next balanced()
+    return node
+
+
+def _weight(node: Formula, cls: type) -> int:
+    """Operands of the ``cls`` chain at ``node`` (1 for any other node); O(1) for balanced()'s own."""
+    if type(node) is not cls:
+        return 1
+    known = getattr(node, "_operands", None)
+    return known if known is not None else len(operands(node))
 
 
 def measure(node: Formula, memo: Optional[dict] = None) -> tuple[int, int]:
