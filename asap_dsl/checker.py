@@ -774,8 +774,9 @@ class Checker:
             list(decls), lambda n: (m.id for m in nodes_in(decls[n].body) if isinstance(m, ast.Name) and m.id in decls))
         for name in cyclic:
             self.d.add("E120", f"formula '{name}' is defined in terms of itself", decls[name].name_span)
+        ordered = set(order)
         for name in decls:
-            if name not in order:  # on a cycle, or using one (reported there)
+            if name not in ordered:  # on a cycle, or using one (reported there)
                 self._formula_ir[name] = None
         for name in order:
             f = decls[name]

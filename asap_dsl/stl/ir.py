@@ -177,15 +177,15 @@ def balanced(cls: type, items: list[Formula]) -> Formula:
     max are associative, so any grouping has the same value, and evaluators walk trees.
 
     Items of the same operator (a chain built earlier, a formula used in a chain) are opened
-    along their left edge only, into subtrees that are kept whole; these are merged like the
-    digits of a binary counter (a tree absorbs its left neighbour while that is not larger).
-    Extending a chain of n operands by one therefore builds O(log n) new nodes: 20,000
-    formulas each defined through the previous one cost linear time, not quadratic."""
+    along their left edge only, into subtrees kept whole, which are then merged like the digits
+    of a binary counter by depth (a tree absorbs its left neighbour while that is not deeper).
+    Extending a chain of n operands by one builds O(log n) new nodes: 20,000 formulas each
+    defined through the previous one cost linear time, not quadratic."""
     blocks: list[Formula] = []
     seen: set[int] = set()
     for item in items:
         spine, n = [], item
-        while type(n) is cls:  # the left edge: n.right are whole subtrees, right to left
+        while type(n) is cls:  # the left edge: each n.right is a whole subtree, right to left
             spine.append(n.right)
             n = n.left
         spine.append(n)
@@ -193,31 +193,32 @@ def balanced(cls: type, items: list[Formula]) -> Formula:
             if id(block) not in seen:  # a and a is a: a shared formula once
                 seen.add(id(block))
                 blocks.append(block)
-    stack: list[tuple[Formula, int]] = []  # (tree, operands), operands decreasing
+    stack: list[tuple[Formula, int]] = []  # (tree, depth), depths strictly decreasing
     for block in blocks:
-        tree, weight = block, _weight(block, cls)
-        while stack and stack[-1][1] <= weight:
-            left, w = stack.pop()
-            tree, weight = _join(cls, left, tree, w + weight), w + weight
-        stack.append((tree, weight))
-    while len(stack) > 1:  # the remaining trees (about log2(n) of them), paired up in order
-        paired = [(_join(cls, a, b, wa + wb), wa + wb) for (a, wa), (b, wb) in zip(stack[::2], stack[1::2])]
-        stack = paired + ([stack[-1]] if len(stack) % 2 else [])
-    return stack[0][0]
+        tree, depth = block, _depth(block)
+        while stack and stack[-1][1] <= depth:
+            left, d = stack.pop()
+            depth = max(d, depth) + 1
+            tree = _join(cls, left, tree, depth)
+        stack.append((tree, depth))
+    # Folded from the left (the deepest first): at most log2(n) levels above the deepest tree,
+    # and the next call opens this fold back into the same trees along its left edge.
+    tree, depth = stack[0]
+    for right, d in stack[1:]:
+        depth = max(depth, d) + 1
+        tree = _join(cls, tree, right, depth)
+    return tree
 
 
-def _join(cls: type, left: Formula, right: Formula, weight: int) -> Formula:
+def _join(cls: type, left: Formula, right: Formula, depth: int) -> Formula:
     node = cls(left, right)
-    object.__setattr__(node, "_operands", weight)  # its operand count, kept for the next balanced()
+    object.__setattr__(node, "_depth", depth)  # kept for the next balanced(): no walk to find it
     return node
 
 
-def _weight(node: Formula, cls: type) -> int:
-    """Operands of the ``cls`` chain at ``node`` (1 for any other node); O(1) for balanced()'s own."""
-    if type(node) is not cls:
-        return 1
-    known = getattr(node, "_operands", None)
-    return known if known is not None else len(operands(node))
+def _depth(node: Formula) -> int:
+    known = getattr(node, "_depth", None)
+    return known if known is not None else measure(node)[0]
 
 
 def measure(node: Formula, memo: Optional[dict] = None) -> tuple[int, int]:
