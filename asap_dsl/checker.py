@@ -21,6 +21,7 @@ from .expr import BUILTIN_CONSTANTS, FUNCTION_ARITY, Symbols, names_in, nodes_in
 from .domains import DomainChecker
 from .rewards import FLOAT32_MAX
 from .intervals import Interval
+from .limits import LIMITS
 from .model import (ActionVar, FormulaModel, Integrator, ProgramModel, RegionModel, RewardModel, StateVar,
                     SystemModel, TaskModel)
 from .stl import ir
@@ -36,12 +37,6 @@ TRAIN_SETTINGS = {
     "vf_coef": "float", "max_grad_norm": "float", "eval_episodes": "int",
 }
 OBSERVE_ITEMS = ("state", "time")
-MAX_SUBSTEPS = 1000  # integrator substeps per step
-MAX_DEADLINE = 1_000_000  # steps of the longest episode
-# A formula as its evaluators walk it (formulas it uses inlined): nested operators, and nodes.
-# Chains of `and`/`or` are balanced (log2 deep) and do not approach the depth.
-MAX_FORMULA_DEPTH = 200
-MAX_FORMULA_SIZE = 100_000
 _MAX_STEPS = 1e9  # a time of more steps than this is a typo, not an episode
 _FUTURE_TO_PAST = {"always": "historically", "eventually": "once", "until": "since"}
 
@@ -384,14 +379,14 @@ class Checker:
         """``node`` if its evaluators can walk it: E001 at ``span`` where formulas used through
         formulas nest too deep, or expand (a formula used twice counts twice) too far."""
         depth, size = ir.measure(node, self._measure_memo)
-        if depth > MAX_FORMULA_DEPTH:
+        if depth > LIMITS.formula_depth:
             self.d.add("E001", f"{what} nests {depth} operators deep, counting the formulas it uses; "
-                       f"the limit is {MAX_FORMULA_DEPTH}", span, hint="a chain of `and` or `or` does not count: "
+                       f"the limit is {LIMITS.formula_depth}", span, hint="a chain of `and` or `or` does not count: "
                        "write long conditions as such chains rather than nesting them")
             raise _Unresolved
-        if size > MAX_FORMULA_SIZE:
+        if size > LIMITS.formula_size:
             self.d.add("E001", f"{what} expands to {size:,} operators, counting a formula each time it is used; "
-                       f"the limit is {MAX_FORMULA_SIZE:,}", span,
+                       f"the limit is {LIMITS.formula_size:,}", span,
                        hint="a formula used twice in one condition is evaluated twice: use it once")
             raise _Unresolved
         return node
@@ -659,9 +654,10 @@ class Checker:
             if not float(v).is_integer() or v < 1:
                 self.d.add("E117", "substeps must be a whole number of at least 1", s.span)
                 continue
-            if v > MAX_SUBSTEPS:  # every step of every environment would take that many evaluations
-                self.d.add("E117", f"substeps = {_fmt(v)} is more than {MAX_SUBSTEPS:,}", s.span,
-                           hint="a smaller dt, or a few substeps, integrates as accurately at a fraction of the cost")
+            if v > LIMITS.substeps:  # every step of every environment would take that many evaluations
+                self.d.add("E117", f"substeps = {_fmt(v)} is more than {LIMITS.substeps:,}", s.span,
+                           hint="a few substeps integrate as accurately at a fraction of the cost; "
+                           "`asapc --max-substeps N` raises the limit")
                 continue
             substeps = int(v)
         return Integrator(decl.method, substeps if decl.method != "exact" else 1, decl.span)
@@ -810,10 +806,11 @@ class Checker:
         asap = attempt(self.clause_condition, clauses["asap"], "asap") if "asap" in clauses else None
         avoid = attempt(self.clause_condition, clauses["avoid"], "avoid") if "avoid" in clauses else None
         deadline = attempt(self.positive_steps, clauses["deadline"].value, "the deadline") if "deadline" in clauses else None
-        if deadline is not None and deadline > MAX_DEADLINE:
+        if deadline is not None and deadline > LIMITS.deadline_steps:
             # Every episode, evaluation and oracle horizon is this long: beyond it nothing finishes.
-            self.d.add("E117", f"a deadline of {deadline:,} steps is more than {MAX_DEADLINE:,}", clauses["deadline"].span,
-                       hint="a larger dt makes the same time fewer steps")
+            self.d.add("E117", f"a deadline of {deadline:,} steps is more than {LIMITS.deadline_steps:,}",
+                       clauses["deadline"].span, hint="a larger dt makes the same time fewer steps; "
+                       "`asapc --max-deadline STEPS` raises the limit")
             errors += 1
             deadline = None
         tolerances: tuple[int, ...] = (deadline,) if deadline else ()

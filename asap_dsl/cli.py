@@ -15,6 +15,7 @@ from typing import Optional, Sequence
 
 from . import __version__
 from .diagnostics import SHOWN, Diagnostic, SpecError, format_report, printable, shorten
+from .limits import LIMITS
 from .program import Program, analyse, loads, read_source
 from .runs import json_safe
 from .stl import ir
@@ -229,6 +230,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--version", action="version", version=f"asapc {__version__}")
     p.add_argument("--max-spec-size", type=positive_int, metavar="MB", default=None,
                    help="read spec files up to this size (default 10 MB)")
+    p.add_argument("--max-deadline", type=positive_int, metavar="STEPS", default=None,
+                   help=f"accept deadlines (episodes, windows, oracle horizons) up to this many steps "
+                   f"(default {LIMITS.deadline_steps:,})")
+    p.add_argument("--max-substeps", type=positive_int, metavar="N", default=None,
+                   help=f"accept integrators with up to N substeps per step (default {LIMITS.substeps:,})")
     sub = p.add_subparsers(dest="command", metavar="COMMAND")
     sub.required = True
 
@@ -275,7 +281,6 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
-MAX_EPISODES = 1_000_000  # initial states per evaluation or oracle run
 
 
 def available_cores() -> int:
@@ -295,10 +300,10 @@ def seed_int(text: str) -> int:
 
 
 def episodes_int(text: str) -> int:
-    """argparse type: a number of initial states, 1 .. MAX_EPISODES."""
+    """argparse type: a number of initial states, 1 .. ``LIMITS.episodes``."""
     value = positive_int(text)
-    if value > MAX_EPISODES:
-        raise argparse.ArgumentTypeError(f"at most {MAX_EPISODES:,} initial states, got {value:,}")
+    if value > LIMITS.episodes:
+        raise argparse.ArgumentTypeError(f"at most {LIMITS.episodes:,} initial states, got {value:,}")
     return value
 
 
@@ -351,9 +356,11 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     if args.max_spec_size is not None:
-        from . import program
-
-        program.MAX_SPEC_BYTES = args.max_spec_size * 1024 * 1024
+        LIMITS.spec_bytes = args.max_spec_size * 1024 * 1024
+    if args.max_deadline is not None:
+        LIMITS.deadline_steps = args.max_deadline
+    if args.max_substeps is not None:
+        LIMITS.substeps = args.max_substeps
     try:
         return int(args.func(args) or 0)
     except SpecError as err:

@@ -16,6 +16,7 @@ from lark import Token, Transformer, v_args
 
 from . import ast
 from .diagnostics import Collector, Diagnostic, Span, SpecError, make
+from .limits import LIMITS
 
 _CANONICAL = {
     "->": "implies", "implies": "implies",
@@ -541,24 +542,20 @@ class _Builder(Transformer):
         return ast.Module(self.diag.file, systems, regions, formulas, tasks)
 
 
-#: Nested operators an expression may have (chains such as a + b + ... or a and b and ... are
-#: flat and do not count). Far beyond any real spec, and well within what the tree walks need.
-MAX_NESTING = 100
-
 # Parse-tree nodes that nest an expression one level deeper.
 _NESTING = frozenset({"paren", "call", "neg", "unary", "pow", "negation", "temporal1", "temporal2",
                       "binary_logic", "compare", "arith_chain", "logic_chain"})
 
 
 def _too_deep(tree: lark.Tree) -> Optional[Span]:
-    """Where the parse tree first nests more than MAX_NESTING expression levels (None if nowhere),
+    """Where the parse tree first nests more than ``LIMITS.nesting`` expression levels (None if nowhere),
     found without recursion: the tree is as deep as the user made it."""
     stack = [(tree, 0)]
     while stack:
         node, depth = stack.pop()
         if node.data in _NESTING:
             depth += 1
-            if depth > MAX_NESTING:
+            if depth > LIMITS.nesting:
                 return _span(node.meta)
         for child in node.children:
             if isinstance(child, lark.Tree):
@@ -582,7 +579,7 @@ def parse(text: str, file: str = "<string>") -> tuple[ast.Module, list[Diagnosti
         raise SpecError([make("E001", "the text nests too deeply to parse", Span(1, 1, 1, 2), file)], text) from None
     too_deep = _too_deep(tree)
     if too_deep is not None:
-        raise SpecError([make("E001", f"the expression nests more than {MAX_NESTING} levels deep here (parentheses, "
+        raise SpecError([make("E001", f"the expression nests more than {LIMITS.nesting} levels deep here (parentheses, "
                               "function calls, `not`, `-` and temporal operators)", too_deep, file,
                               hint="split it into named parts with `let` or `formula`")], text)
     try:

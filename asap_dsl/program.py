@@ -15,6 +15,7 @@ import numpy as np
 
 from . import checker, lint, parser
 from .diagnostics import Collector, Diagnostic, Span, SpecError, make
+from .limits import LIMITS
 from .model import ProgramModel, RegionModel, SystemModel, TaskModel, formula_bounds
 from .stl import ir
 
@@ -196,10 +197,6 @@ def loads(text: str, name: str = "<string>") -> Program:
     return Program(model, [d for d in diagnostics if not d.is_error])
 
 
-#: The largest spec file read (bytes); ``asapc --max-spec-size MB`` raises it.
-MAX_SPEC_BYTES = 10 * 1024 * 1024
-
-
 def _read_regular_file(p: Path, name: str, limit: int) -> bytes:
     """The bytes of a regular file of at most ``limit`` bytes. Devices, pipes and sockets are
     refused before anything is read (``/dev/zero`` never ends, a FIFO blocks)."""
@@ -239,13 +236,13 @@ def _read_regular_file(p: Path, name: str, limit: int) -> bytes:
 def read_source(path: Union[str, os.PathLike], max_bytes: Optional[int] = None) -> str:
     """Read a spec file as UTF-8 text, turning every way of failing into a positioned SpecError.
 
-    Only regular files of at most ``max_bytes`` (default :data:`MAX_SPEC_BYTES`) are read; a
+    Only regular files of at most ``max_bytes`` (default ``LIMITS.spec_bytes``) are read; a
     UTF-8 byte-order mark is skipped.
     """
     p = Path(path)
     name = str(path)
     whole = Span(1, 1, 1, 2)
-    data = _read_regular_file(p, name, MAX_SPEC_BYTES if max_bytes is None else int(max_bytes))
+    data = _read_regular_file(p, name, LIMITS.spec_bytes if max_bytes is None else int(max_bytes))
     if data.startswith(b"\xef\xbb\xbf"):  # a BOM that some editors write: not part of the text
         data = data[3:]
     try:

@@ -19,7 +19,7 @@ from typing import Any, Optional, Sequence, Union
 
 import numpy as np
 
-from asap_dsl.cli import MAX_EPISODES
+from asap_dsl.limits import LIMITS
 from asap_dsl.diagnostics import SpecError
 from asap_dsl.program import Program, loads, read_source
 from asap_dsl.rollout import Evaluator, RolloutResult
@@ -211,8 +211,8 @@ def evaluate(run: Union[str, Path], *, episodes: int = 1000, tolerances: Optiona
     """
     if oracle not in ("auto", "cache", "off"):
         raise ValueError(f"oracle must be auto, cache or off; got {oracle!r}")
-    if not 1 <= int(episodes) <= MAX_EPISODES:
-        raise ValueError(f"episodes must be between 1 and {MAX_EPISODES:,}; got {episodes}")
+    if not 1 <= int(episodes) <= LIMITS.episodes:
+        raise ValueError(f"episodes must be between 1 and {LIMITS.episodes:,}; got {episodes}")
     if seed < 0:
         raise ValueError(f"the seed must be 0 or more; got {seed}")
     loaded = load_run(run, spec)

@@ -152,7 +152,7 @@ def test_only_regular_files_of_bounded_size_are_read(capsys, tmp_path, monkeypat
     """/dev/zero never ends and a FIFO blocks: both are refused before anything is read."""
     import os
 
-    from asap_dsl import program
+    from asap_dsl.limits import LIMITS
 
     fifo = tmp_path / "pipe.asap"
     os.mkfifo(fifo)
@@ -161,7 +161,7 @@ def test_only_regular_files_of_bounded_size_are_read(capsys, tmp_path, monkeypat
         assert code == 1 and "E002" in out and "not a regular file" in out
     big = tmp_path / "big.asap"
     big.write_text((ROOT / "examples" / "double_integrator.asap").read_text() + ("# padding\n" * 120_000))
-    monkeypatch.setattr(program, "MAX_SPEC_BYTES", program.MAX_SPEC_BYTES)  # restored after the test
+    monkeypatch.setattr(LIMITS, "spec_bytes", LIMITS.spec_bytes)  # restored after the test
     code, out, _ = run(capsys, "--max-spec-size", "1", "lint", str(big))
     assert code == 1 and "larger than the limit of 1 MB" in out and "--max-spec-size" in out
     code, out, _ = run(capsys, "--max-spec-size", "2", "lint", str(big))

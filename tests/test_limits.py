@@ -9,7 +9,7 @@ import pytest
 
 import asap_dsl
 from asap_dsl.env import make_vec_env
-from asap_dsl.parser import MAX_NESTING
+from asap_dsl.limits import LIMITS
 from asap_dsl.stl import ir
 from conftest import BASE, position
 
@@ -65,8 +65,8 @@ def test_the_value_of_a_long_chain_is_the_value_as_written():
     lambda n: "y' = " + "sin(" * n + "u" + ")" * n,
 ])
 def test_nesting_past_the_limit_is_e001_at_the_place(nest):
-    runs(BASE.replace("y' = u", nest(MAX_NESTING - 2)))
-    src = BASE.replace("y' = u", nest(MAX_NESTING + 5))
+    runs(BASE.replace("y' = u", nest(LIMITS.nesting - 2)))
+    src = BASE.replace("y' = u", nest(LIMITS.nesting + 5))
     with pytest.raises(asap_dsl.SpecError) as err:
         asap_dsl.loads(src)
     d = err.value.diagnostics[0]
@@ -96,3 +96,26 @@ def test_cycles_of_any_length_are_e120_once():
         asap_dsl.loads(src)
     e120 = [d for d in err.value.diagnostics if d.code == "E120"]
     assert len(e120) == 1 and "defined in terms of itself" in e120[0].message
+
+
+def test_resource_limits_are_raised_by_flags_and_in_python(capsys, tmp_path):
+    from asap_dsl import cli
+    from asap_dsl.limits import raised
+
+    long = tmp_path / "long.asap"
+    long.write_text(BASE.replace("deadline 30", "deadline 2000000").replace(
+        "dt = 0.1", "dt = 0.1\n  integrator rk4(substeps = 5000)"))
+    assert cli.main(["lint", str(long)]) == 1
+    out = capsys.readouterr().out
+    assert "more than 1,000,000" in out and "--max-deadline" in out
+    assert "more than 1,000" in out and "--max-substeps" in out
+    try:
+        assert cli.main(["--max-deadline", "3000000", "--max-substeps", "5000", "lint", str(long)]) == 0
+    finally:  # the flags set this process's limits: put them back for the other tests
+        LIMITS.deadline_steps, LIMITS.substeps = 1_000_000, 1000
+    with raised(deadline_steps=3_000_000, substeps=5000):
+        asap_dsl.loads(long.read_text())
+    assert LIMITS.deadline_steps == 1_000_000
+    with pytest.raises(TypeError, match="unknown limit"):
+        with raised(windows=3):
+            pass
