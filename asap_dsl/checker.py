@@ -114,6 +114,10 @@ class Checker:
         """Check that ``e`` is a numeric expression over names of the ``allowed`` kinds."""
         if isinstance(e, (ast.Number, ast.Infinity)):
             return
+        if isinstance(e, ast.Duration):  # `substeps = 2s`: a time where only a number can stand
+            self.d.add("E117", f"{context} takes a number, not a time", e.span,
+                       hint="times (1s, 500ms) are for deadlines, tolerances, windows and episode lengths")
+            raise _Unresolved
         if isinstance(e, ast.Name):
             if e.id in BUILTIN_CONSTANTS:
                 return
@@ -184,7 +188,7 @@ class Checker:
 
     def constant(self, e: ast.Expr, what: str) -> float:
         """Fold a constant expression; report and raise if it reads anything but constants."""
-        self.number(e, (CONST,), "a constant expression")
+        self.number(e, (CONST,), what if isinstance(e, ast.Duration) else "a constant expression")
         value = evaluate_constant(e, self.consts)
         if math.isnan(value):
             self.d.add("E117", f"{what} is not a real number (check divisions, logarithms and roots)", e.span)
@@ -322,7 +326,7 @@ class Checker:
             raise _Unresolved
         self.used.add(e.region)
         region = self.regions[e.region]
-        return ir.Atom(f"in {e.region}", region.robustness, region.satisfied, self.region_bounds(region))
+        return ir.Atom(f"in {e.region}", region.robustness, region.satisfied, self.region_bounds(region), e.region)
 
     def compare_atom(self, e: ast.Compare) -> ir.Formula:
         if e.op in ("==", "!="):
@@ -456,11 +460,15 @@ class Checker:
                 dist = dist + (iv - c) ** 2
             lo, hi = math.sqrt(max(dist.lo, 0.0)), math.sqrt(dist.hi) if math.isfinite(dist.hi) else math.inf
             return (region.radius - hi, region.radius - lo)
+        # Each side's margin min(v - a, b - v) is a tent over v, highest ((b - a) / 2) at the
+        # middle: its range over [v.lo, v.hi] is exact, and the box's is their minimum (exact
+        # when the coordinates are states; sound for lets). Never above the smallest half-width.
         lows, highs = [], []
         for iv, a, b in zip(coords, region.low, region.high):
-            side = Interval(min(iv.lo - a, b - iv.hi), min(iv.hi - a, b - iv.lo))
-            lows.append(side.lo)
-            highs.append(side.hi)
+            tent = lambda v, a=a, b=b: min(v - a, b - v)  # noqa: E731
+            mid = (a + b) / 2
+            lows.append(min(tent(iv.lo), tent(iv.hi)))
+            highs.append((b - a) / 2 if iv.lo <= mid <= iv.hi else max(tent(iv.lo), tent(iv.hi)))
         return (min(lows), min(highs))
 
     def range_(self, r: ast.Range, what: str) -> tuple[float, float]:
@@ -499,30 +507,27 @@ class Checker:
         for lt in sys.lets:
             self.declare(lt.name, LET, lt.name_span)
 
-        for c in sys.consts:  # in order: a constant may use earlier ones
+        if not sys.dt:
+            self.d.add("E114", f"system '{sys.name}' has no `dt = ...` (seconds per step)", sys.name_span)
+        for extra in sys.dt[1:]:
+            self.d.add("E119", "dt is given more than once", extra.span)
+        # `dt = ...` is a constant like the others, read as `dt` by any expression: in order with the
+        # constants (a constant may use those before it, dt included).
+        steps: list = [(c.span.line, c.span.column, c) for c in sys.consts]
+        if sys.dt:
+            self.declare("dt", CONST, sys.dt[0].span)
+            self.used.add("dt")  # never reported unused: it is the system's step
+            steps.append((sys.dt[0].span.line, sys.dt[0].span.column, sys.dt[0]))
+        for _, _, c in sorted(steps, key=lambda item: item[:2]):
+            if not isinstance(c, ast.ConstDecl):
+                self.check_dt(c)
+                continue
             if self.kinds.get(c.name, (None, None))[1] != c.name_span:
                 continue
             try:
                 self.consts[c.name] = self.constant(c.value, f"constant '{c.name}'")
             except _Unresolved:
                 self._const_failed.add(c.name)
-
-        dt_ok = True
-        if not sys.dt:
-            self.d.add("E114", f"system '{sys.name}' has no `dt = ...` (seconds per step)", sys.name_span)
-            dt_ok = False
-        for extra in sys.dt[1:]:
-            self.d.add("E119", "dt is given more than once", extra.span)
-        if sys.dt:
-            try:
-                dt = self.constant(sys.dt[0], "dt")
-                if not dt > 0 or not math.isfinite(dt):
-                    self.d.add("E117", f"dt must be a positive number of seconds, not {_fmt(dt)}", sys.dt[0].span)
-                else:
-                    self.dt = dt
-            except _Unresolved:
-                dt_ok = False
-        del dt_ok
 
         for s in sys.states:
             if self.kinds.get(s.name, (None, None))[1] != s.name_span:
@@ -571,6 +576,19 @@ class Checker:
             return None
         return SystemModel(sys.name, tuple(self.states), tuple(self.actions), dict(self.consts), dict(self.lets),
                            self.dt, kind, equations, simulator, integrator, sys.span, dyn_span)
+
+    def check_dt(self, e: ast.Expr) -> None:
+        try:
+            dt = self.constant(e, "dt")
+        except _Unresolved:
+            self._const_failed.add("dt")
+            return
+        if not dt > 0 or not math.isfinite(dt):
+            self.d.add("E117", f"dt must be a positive number of seconds, not {_fmt(dt)}", e.span)
+            self._const_failed.add("dt")
+            return
+        self.dt = dt
+        self.consts["dt"] = dt
 
     def _let_order(self, decls: dict[str, ast.LetDecl]) -> list[str]:
         order, cyclic = dependency_order(list(decls), lambda n: (m.id for m in names_in(decls[n].value) if m.id in decls))
@@ -826,7 +844,8 @@ class Checker:
                 errors += 1
             episode = (lo or 1, hi or 1)
         reward = attempt(self.reward, clauses["reward"].value, asap, avoid) if "reward" in clauses else RewardModel()
-        if reward is not None and reward.kind == "distance" and "asap" in clauses and not _regions_of(clauses["asap"].value):
+        asap_regions = ir.positive_regions(asap) if asap is not None else ()
+        if reward is not None and reward.kind == "distance" and asap is not None and not asap_regions:
             self.d.add("E117", "reward distance(...) measures the distance to the `asap` region, but `asap` names no region",
                        clauses["reward"].span, hint="write `asap in REGION` (possibly with more conditions), or use reward asap or rho")
             errors += 1
@@ -844,7 +863,7 @@ class Checker:
         return TaskModel(
             t.name, asap, avoid, deadline, tolerances, episode, reward or RewardModel(), r_sat, observe, train, t.span,
             {k: c.span for k, c in clauses.items()},
-            _regions_of(clauses["asap"].value), _regions_of(clauses["avoid"].value) if "avoid" in clauses else (),
+            asap_regions, ir.positive_regions(avoid) if avoid is not None else (),
         )
 
     def positive_steps(self, d: ast.Duration, what: str) -> int:
@@ -867,7 +886,9 @@ class Checker:
                            hint=f"it takes {', '.join(REWARDS[syn.kind]) or 'no settings'}")
                 raise _Unresolved
             if s.name == "window":
-                if isinstance(s.value, ast.Number):
+                if isinstance(s.value, ast.Duration):  # rho(window = 1s)
+                    params["window"] = self.positive_steps(s.value, "the reward window")
+                elif isinstance(s.value, ast.Number):
                     params["window"] = self.positive_steps(ast.Duration(s.value.value, "steps", s.value.span), "the reward window")
                 else:
                     params["window"] = self.constant(s.value, "the reward window")
@@ -1002,11 +1023,6 @@ def dependency_order(names: list[str], deps: Callable[[str], Iterable[str]]) -> 
                     state[name] = DONE
                     order.append(name)
     return order, cyclic
-
-
-def _regions_of(e: ast.Expr) -> tuple[str, ...]:
-    """Regions named by `in R` atoms anywhere in a condition."""
-    return tuple(dict.fromkeys(n.region for n in nodes_in(e) if isinstance(n, ast.InRegion)))
 
 
 def _fmt(x: float) -> str:

@@ -121,7 +121,7 @@ def show_data(prog: Program, only_task: Optional[str] = None) -> dict:
             "dynamics": sys_.kind if sys_.kind != "simulator" else f'simulator "{sys_.simulator}"',
             "integrator": None if sys_.kind != "ode" else (integ.method if integ.method == "exact" else f"{integ.method}(substeps = {integ.substeps})"),
             "dt": sys_.dt,
-            "constants": dict(sys_.consts),
+            "constants": {k: v for k, v in sys_.consts.items() if k != "dt"},  # dt has its own line
             "states": [{"name": s.name, "space": [s.low, s.high], "init": [s.init_low, s.init_high]} for s in sys_.states],
             "actions": [{"name": a.name, "bounds": [a.low, a.high]} for a in sys_.actions],
             "lets": {k: prog.model.declared[k][1].line for k in sys_.lets},

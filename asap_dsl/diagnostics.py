@@ -62,6 +62,7 @@ RULES: dict[str, Rule] = {
         Rule("E122", "init-not-sampleable", "error", "An `init` range (given, or the state space by default) that is infinite or too wide to draw states from uniformly."),
         Rule("E123", "init-inside-avoid", "error", "Every initial state (512 drawn from the `init` box) already satisfies `avoid`: no episode can start."),
         Rule("E124", "outside-domain", "error", "An operation whose argument is outside its domain for every state: sqrt or log of a negative number, asin/acos beyond ±1, a division by zero, a negative base to a fractional power."),
+        Rule("E125", "asap-never-holds", "error", "`asap` asks to be in two regions at once that do not overlap (in every branch of an `or`): no episode can fulfil it."),
         Rule("W201", "regions-overlap", "warning", "The `asap` region overlaps the `avoid` region: the target is partly unsafe."),
         Rule("W202", "unused-name", "warning", "A constant, let, region or formula that nothing uses."),
         Rule("W203", "horizon-beyond-deadline", "warning", "A formula looks further into the past than the deadline allows any trace to be long."),

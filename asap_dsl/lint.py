@@ -223,6 +223,39 @@ class RegionsOverlap(LintRule):
 
 
 @rule
+class AsapNeverHolds(LintRule):
+    """`asap in goal and in wall` with disjoint regions: no state is in both, so no episode can
+    ever fulfil the task (each `or` branch is judged; regions over different coordinates, whose
+    overlap is not decided, never fire it)."""
+
+    code = "E125"
+
+    def check(self, prog, out):
+        for t in prog.tasks.values():
+            pairs = []
+            for branch in ir.operands(t.asap) if isinstance(t.asap, ir.Or) else [t.asap]:
+                pair = _disjoint_pair(prog, ir.operands(branch) if isinstance(branch, ir.And) else [branch])
+                if pair is None:
+                    break
+                pairs.append(pair)
+            else:
+                a, b = pairs[0]
+                more = " (and so does every other branch of its `or`)" if len(pairs) > 1 else ""
+                out.add(self.code, f"`asap` of task '{t.name}' can never hold: it asks to be in regions '{a}' and '{b}' "
+                        f"at once, and they do not overlap{more}", t.clause_spans["asap"],
+                        hint="did you mean `or`, or `and not in ...`?")
+
+
+def _disjoint_pair(prog: ProgramModel, conjuncts: list) -> Optional[tuple[str, str]]:
+    regions = [c.region for c in conjuncts if isinstance(c, ir.Atom) and c.region in prog.regions]
+    for i, a in enumerate(regions):
+        for b in regions[i + 1:]:
+            if regions_overlap(prog.regions[a], prog.regions[b]) is False:
+                return a, b
+    return None
+
+
+@rule
 class UnusedName(LintRule):
     code = "W202"
 

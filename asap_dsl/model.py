@@ -208,7 +208,7 @@ class TaskModel:
     train: Mapping[str, Any]
     span: Span
     clause_spans: Mapping[str, Span]
-    asap_regions: tuple[str, ...]  # regions named by `in R` atoms of asap / avoid
+    asap_regions: tuple[str, ...]  # regions of `in R` atoms occurring positively in asap / avoid
     avoid_regions: tuple[str, ...]
 
     @property

@@ -7,6 +7,7 @@ The grammar lives in ``grammar/asap.lark`` (shipped inside the package as
 from __future__ import annotations
 
 import functools
+import re
 from importlib import resources
 from pathlib import Path
 from typing import Any, Optional
@@ -149,11 +150,14 @@ def _syntax_diagnostic(err: lark.exceptions.LarkError, text: str, file: str) -> 
             span = Span(line, col, line, col + 1)
         else:
             span = _span_of_token(tok)
+        spaced = _spaced_unit_before(tok, text)
+        if spaced is not None:  # `episode 2 s .. 15s`: the unit apart from its number
+            return make("E001", f"write `{spaced}{tok}`: a unit goes right after its number, with no space", span, file)
         expected = _describe_expected(set(err.expected))
         message = f"unexpected {_describe_token(tok)}" + (f"; {expected}" if expected else "")
         hint = None
         if tok.type != "NAME" and tok.isidentifier() and "NAME" in err.expected:
-            hint = f"'{tok}' is a reserved word and cannot be used as a name"
+            hint = f"'{tok}' is a reserved word of the language: it cannot name anything, nor be read as a value"
         elif tok.type == "$END":
             hint = "a '}', ')' or ']' may be missing"
         elif tok == "=" and "PRIME" in err.expected:
@@ -166,6 +170,14 @@ def _syntax_diagnostic(err: lark.exceptions.LarkError, text: str, file: str) -> 
         col = len(lines[-1]) + 1 if lines else 1
         return make("E001", "unexpected end of the file", Span(line, col, line, col + 1), file, "a '}', ')' or ']' may be missing")
     return make("E001", "the text could not be parsed", Span(1, 1, 1, 2), file)
+
+
+def _spaced_unit_before(tok: Token, text: str) -> Optional[str]:
+    """The number written just before a unit token (``2`` in ``2 s``) on the same line, else None."""
+    if tok.type != "NAME" or str(tok) not in ("s", "ms") or tok.start_pos is None:
+        return None
+    m = re.search(r"(\d+(?:\.\d+)?(?:[eE][+-]?\d+)?)[ \t]+$", text[max(0, tok.start_pos - 40):tok.start_pos])
+    return m.group(1) if m else None
 
 
 def _misspelt_keyword_hint(tok: Token, expected: set, text: str) -> Optional[str]:
@@ -200,6 +212,10 @@ def _span(meta: Any) -> Span:
     return Span(meta.line, meta.column, meta.end_line, meta.end_column)
 
 
+def _number_text(value: float) -> str:
+    return str(int(value)) if float(value).is_integer() else repr(value)
+
+
 def _join(a: Span, b: Span) -> Span:
     return Span(a.line, a.column, b.end_line, b.end_column)
 
@@ -223,6 +239,9 @@ class _Builder(Transformer):
     def name(self, meta, children):
         tok = children[0]
         return ast.Name(str(tok), _span_of_token(tok))
+
+    def dt_ref(self, meta, children):  # `dt` read in an expression: the system's step, a constant
+        return ast.Name("dt", _span(meta))
 
     def call(self, meta, children):
         tok = children[0]
@@ -356,6 +375,11 @@ class _Builder(Transformer):
     def simulator_decl(self, meta, children):
         return ast.SimulatorDecl(str(children[0])[1:-1], _span(meta))
 
+    def time_value(self, meta, children):
+        tok = children[0]
+        unit = "ms" if tok.endswith("ms") else "s"
+        return ast.Duration(float(tok[: -len(unit)]), unit, _span_of_token(tok))
+
     def setting(self, meta, children):
         tok, value = children
         return ast.Setting(str(tok), value, _span(meta), _span_of_token(tok))
@@ -374,11 +398,12 @@ class _Builder(Transformer):
     def sep(self, meta, children):
         return ("sep", str(children[0]))
 
-    def _fold_continuations(self, items: list, continue_head) -> list:
+    def _fold_continuations(self, items: list, continue_head, attach=None) -> list:
         """Fold comma-continued items (``const a = 1, b = 2``, ``tolerances 30, 25``) into their head.
 
         ``continue_head(kind, head, payload)`` returns the items that replace ``head`` when the
         continuation belongs to it, else None (the continuation is then reported as misplaced).
+        ``attach`` is tried the same way for an item that follows its head with no separator.
         """
         out: list = []
         last_sep: Optional[str] = None
@@ -390,6 +415,8 @@ class _Builder(Transformer):
             if isinstance(item, tuple) and item[0] in ("bare_binding", "bare_duration", "bare_name"):
                 kind, payload = item
                 folded = continue_head(kind, out[-1], payload) if last_sep == "," and out else None
+                if folded is None and attach is not None and last_sep is None and out:
+                    folded = attach(kind, out[-1], payload)
                 if folded is not None:
                     out[-1:] = folded
                     misplaced_name = False
@@ -530,9 +557,27 @@ class _Builder(Transformer):
             end = payload[1] if isinstance(payload, tuple) else payload.span
             return [ast.Clause(head.keyword, head.value + (payload,), _join(head.span, end))]
 
-        merged = self._fold_continuations(list(children[1:]), continue_clause)
+        merged = self._fold_continuations(list(children[1:]), continue_clause, self._spaced_unit)
         clauses = tuple(c for c in merged if isinstance(c, ast.Clause))
         return ast.TaskDecl(str(tok), clauses, _span(meta), _span_of_token(tok))
+
+    def _spaced_unit(self, kind, head, payload):
+        """``deadline 15 s``: a unit written apart from its number. One error at the unit, and the
+        time read as meant (15 s), so that nothing is reported for a deadline of 15 steps."""
+        if kind != "bare_name" or payload[0] not in ("s", "ms") or not isinstance(head, ast.Clause):
+            return None
+        value = head.value
+        last = value[-1] if isinstance(value, tuple) and value else value
+        if not isinstance(last, ast.Duration) or last.unit != "steps" or last.is_inf:
+            return None
+        unit, span = payload
+        if span.line != last.span.end_line:
+            return None
+        self.diag.add("E001", f"write `{_number_text(last.value)}{unit}`: a unit goes right after its number, "
+                      "with no space", span)
+        fixed = ast.Duration(last.value, unit, _join(last.span, span))
+        value = value[:-1] + (fixed,) if isinstance(value, tuple) else fixed
+        return [ast.Clause(head.keyword, value, _join(head.span, span))]
 
     def start(self, meta, children):
         systems = tuple(c for c in children if isinstance(c, ast.System))

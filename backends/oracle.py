@@ -282,19 +282,22 @@ class Oracle:
         P = np.stack([vals(np.eye(self.n)[i:i + 1])[0] - p for i in range(self.n)], axis=1)
         return P, p
 
-    def lower_bound(self, x0: np.ndarray) -> int:
+    def lower_bound(self, x0: np.ndarray, until: float = math.inf) -> int:
         """The smallest N not excluded by a sound test: the support-function test for linear
-        dynamics, interval reachability for non-linear ones (0 when disabled)."""
+        dynamics, interval reachability for non-linear ones (0 when disabled). At the clock time
+        ``until`` (``time.perf_counter``) the test stops where it is: still a lower bound."""
         if not self.goal_dnf:
             return 0
         if not self.linear:
-            return self.interval_lower_bound(x0) if self.interval_bound else 0
+            return self.interval_lower_bound(x0, until) if self.interval_bound else 0
         A, B, c = self._affine
         affine = {r: self._coord_affine(r) for conj in self.goal_dnf for r, pos in conj if pos}
         free = np.asarray(x0, float)
         gens: list[np.ndarray] = []  # B, A B, A^2 B, ... (A^j B multiplies u_{N-1-j})
         Aj_B = B.copy()
         for N in range(self.deadline + 1):
+            if N % 256 == 255 and time.perf_counter() > until:
+                return N
             if N > 0:
                 free = A @ free + c
                 gens.append(Aj_B)
@@ -385,7 +388,7 @@ class Oracle:
                 return True
         return False
 
-    def interval_lower_bound(self, x0: np.ndarray) -> int:
+    def interval_lower_bound(self, x0: np.ndarray, until: float = math.inf) -> int:
         """The first N at which the interval enclosure of the reachable set (all action
         sequences, states kept inside the state space at steps 1..N, as the task requires) can
         meet ``asap``; ``deadline + 1`` when it cannot up to the deadline. Sound: the enclosure
@@ -394,6 +397,8 @@ class Oracle:
         S = [Interval(float(v), float(v)) for v in x0]
         try:
             for N in range(1, self.deadline + 1):
+                if N % 256 == 0 and time.perf_counter() > until:
+                    return N
                 S = self._interval_step(S, A)
                 out = []
                 for iv, lo, hi in zip(S, self.low, self.high):
@@ -710,7 +715,7 @@ class Oracle:
         if self.trajectory_ok(tr0):
             return StateResult(index, x0, 0, "solved", True, actions=np.zeros((0, self.m)),
                                trajectory=tr0, seconds=time.perf_counter() - start)
-        lb = max(1, self.lower_bound(x0))
+        lb = max(1, self.lower_bound(x0, until=start + self.time_limit))
         failures = solves = restarts = 0
         own: dict[int, dict] = {}
         for N in range(lb, self.deadline + 1):

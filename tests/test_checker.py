@@ -267,3 +267,59 @@ def test_infinite_reward_numbers_in_a_flag_are_refused():
 
     with pytest.raises(ValueError, match="finite"):
         parse_reward("distance(lambda_t = inf)")
+
+
+# ---------------------------------------------------------------- dt is a constant
+def test_dt_is_read_in_expressions_like_a_constant():
+    src = BASE.replace("dt = 0.1", "const T = 10\n  dt = T / 100\n  const h = dt / 2").replace(
+        "  ode {\n    x' = y\n    y' = u\n  }", "  map {\n    x = x + dt * y\n    y = y + h * 2 * u\n  }").replace(
+        "asap in goal", "asap in goal and x < dt * 40")
+    prog = asap_dsl.loads(src)
+    assert prog.system.dt == 0.1 and prog.system.consts["h"] == 0.05
+    from asap_dsl.dynamics import numpy_step
+
+    nxt = numpy_step(prog.system)(np.array([[1.0, 2.0]]), np.array([[1.0]]))
+    assert np.allclose(nxt, [[1.0 + 0.1 * 2.0, 2.0 + 0.1]])
+    assert not [d for d in prog.warnings if d.code == "W202"]  # dt is never "unused"
+
+
+def test_dt_before_its_line_in_a_constant_is_said_in_words():
+    src = BASE.replace("  state x", "  const a = dt\n  state x").replace("asap in goal", "asap in goal and x < a")
+    found = [d for d in diagnostics(src) if d.is_error]
+    assert [d.code for d in found] == ["E101"] and "'dt' is used before it is declared" in found[0].message
+
+
+def test_a_reserved_word_read_as_a_value_gets_a_hint_that_says_so():
+    src = BASE.replace("y' = u", "y' = u * task")
+    (d,) = diagnostics(src)
+    assert d.code == "E001" and "cannot name anything, nor be read as a value" in d.hint
+
+
+# ---------------------------------------------------------------- region robustness bounds
+def _region_spec(space, shape):
+    return (f"system Plane {{\n  state x in [{space[0]}, {space[1]}]\n  state y in [{space[2]}, {space[3]}]\n"
+            f"  action u in [-1, 1]\n  dt = 0.1\n  ode {{ x' = u, y' = u }}\n}}\nregion r = {shape}\n"
+            f"task t {{ asap in r  deadline 10 }}\n")
+
+
+@pytest.mark.parametrize("space, shape", [
+    ((-3.15, 3.15, -8, 8), "box(x in [-0.15, 0.15], y in [-0.5, 0.5])"),   # the pendulum's upright box
+    ((-5, 5, -5, 5), "box(x in [2, 9])"),                                  # partly outside the space
+    ((-5, 5, -5, 5), "box(x in [4, 9], y in [0, 1])"),                     # the middle outside the space
+    ((-5, 5, -5, 5), "ball([1, 0], 0.5)"), ((-5, 5, -5, 5), "ball({x: 5.5}, 1)"),
+    ((0, 1, 0, 1), "ball([3, 3], 5)"),
+])
+def test_region_bounds_are_the_true_range_over_the_state_space(space, shape):
+    prog = asap_dsl.loads(_region_spec(space, shape))
+    lo, hi = prog.task("t").rho_bounds
+    region = prog.regions["r"]
+    rng = np.random.default_rng(0)
+    grid = np.stack(np.meshgrid(np.linspace(space[0], space[1], 401), np.linspace(space[2], space[3], 401)), -1)
+    states = np.concatenate([grid.reshape(-1, 2), rng.uniform(space[::2], space[1::2], size=(20000, 2))])
+    rho = region.robustness(states)
+    assert lo - 1e-12 <= rho.min() and rho.max() <= hi + 1e-12
+    assert hi - rho.max() < 0.03 * max(1.0, hi - lo) and rho.min() - lo < 0.03 * max(1.0, hi - lo)  # tight
+    if region.kind == "box":  # never above the smallest half-width; a ball's never above its radius
+        assert hi <= min(b - a for a, b in zip(region.low, region.high)) / 2 + 1e-12
+    else:
+        assert hi <= region.radius + 1e-12

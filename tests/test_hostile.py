@@ -56,6 +56,11 @@ def task_clause(clause: str) -> str:
     return edit("deadline 30", f"deadline 30\n  {clause}")
 
 
+# z never moves, so the goal is never reached: only a search (bounded in time) can tell
+STUCK = ("system Stuck {\n  state x in [-10, 10] init [-5, -5]\n  state z in [-5, 5] init [0, 0]\n"
+         "  action u in [-1, 1]\n  dt = 1\n  map { x = x + u, z = z }\n}\n"
+         "region up = box(z in [1, 2])\ntask never { asap in up  deadline 1000000 }\n")
+
 # name -> (how to make the input in tmp: returns the path, commands to run on it)
 LINT_SHOW = (("lint",), ("show",), ("show", "--format", "json"))
 ORACLE = (("oracle", "--episodes", "3", "--state-time-limit", "2"),)
@@ -103,10 +108,7 @@ CASES = {
         ("oracle", "--seed", "-1"), ("oracle", "--episodes", "1000000000000"), ("oracle", "--episodes", "1e12"),
         ("oracle", "--workers", "1000"), ("oracle", "--task", ""), ("oracle", "--task", "nope"),
         ("oracle", "--state-time-limit", "inf"), ("lint", "--deep", "--samples", "0"))),
-    "unreachable-deep": (lambda tmp: spec(tmp, edit("region goal = ball([1, 0], 0.5)",
-                                                    "region goal = ball([1, 0], 0.5)\nregion home = ball([-4, 0], 0.5)",
-                                                    "asap in goal", "asap in goal and in home",
-                                                    "deadline 30", "deadline 1000000")),
+    "unreachable-deep": (lambda tmp: spec(tmp, STUCK),
                          (("lint", "--deep", "--samples", "2", "--deep-seconds", "2"),
                           ("oracle", "--episodes", "2", "--state-time-limit", "1"))),
     # 7. settings that would exhaust the machine

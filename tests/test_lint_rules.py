@@ -72,6 +72,8 @@ CASES = {
              edit("y' = u", "y' = u + sqrt(x + 10)")),
     "W209": (edit("asap in goal", "asap in goal and log(y) < 1"), "log(y)", 0,
              edit("asap in goal", "asap in goal and log(y + 6) < 1")),
+    "E125": (edit("asap in goal", "asap in goal and in unsafe"), "asap in goal", 0,
+             edit("asap in goal", "asap in goal and not in unsafe")),
     "W201": (edit("ball([-1, 0], 0.2)", "ball([1.5, 0], 0.2)"), "avoid in unsafe", 0,
              edit("ball([-1, 0], 0.2)", "ball([1.75, 0], 0.2)")),
     "W202": (edit("dt = 0.1", "dt = 0.1\n  const k = 2"), "k =", 0,
@@ -194,3 +196,20 @@ def test_extreme_centres_give_diagnostics_not_numpy_warnings():
 
 def test_w201_stays_quiet_for_a_box_obstacle_beside_a_ball_goal():
     assert "W201" not in codes(edit("ball([-1, 0], 0.2)", "box(x in [1.6, 2])"))
+
+
+def test_regions_overlap_judges_only_regions_asap_asks_to_be_in():
+    # `not in unsafe` asks to be out of it: no overlap warning, however close the regions are
+    # (goal and unsafe are apart in BASE: only an asap that asks to be in `unsafe` overlaps it)
+    assert "W201" not in codes(BASE.replace("asap in goal", "asap in goal and (not in unsafe) since in goal"))
+    assert "W201" not in codes(BASE.replace("asap in goal", "asap in goal and (in unsafe -> x > 9)"))
+    # through a formula, and on the right of ->, it is positive
+    assert "W201" in codes(BASE.replace("task t {", "formula bad = in unsafe\ntask t {").replace(
+        "asap in goal", "asap in goal or (x > 0 -> bad)"))
+
+
+def test_an_asap_that_can_never_hold_is_an_error_and_an_or_needs_every_branch_impossible():
+    assert "E125" in codes(BASE.replace("asap in goal", "asap in goal and in unsafe"))
+    assert "E125" in codes(BASE.replace("asap in goal", "asap (in goal and in unsafe) or (in unsafe and in goal)"))
+    assert "E125" not in codes(BASE.replace("asap in goal", "asap (in goal and in unsafe) or in goal"))
+    assert "E125" not in codes(BASE.replace("asap in goal", "asap once[0, 3] in goal and in unsafe"))

@@ -171,9 +171,10 @@ def test_unreachable_goal_is_reported():
 
 def test_the_search_of_a_state_is_bounded_in_time():
     # an unreachable goal with a deadline of a million steps: a timeout, not days of search
-    # (goal and a disc around the start are disjoint: no horizon is ever feasible)
-    prog = asap_dsl.loads(PLANE + "region start = ball([-5, 0], 1)\n"
-                          "task never { asap in goal and in start  deadline 1000000 }\n")
+    # z never moves: the goal z in [1, 2] is never reached, which only the search can find out
+    prog = asap_dsl.loads("system Stuck {\n  state x in [-10, 10] init [-5, -5]\n  state z in [-5, 5] init [0, 0]\n"
+                          "  action u in [-1, 1]\n  dt = 1\n  map { x = x + u, z = z }\n}\n"
+                          "region up = box(z in [1, 2])\ntask never { asap in up  deadline 1000000 }\n")
     far = "never"
     t0 = time.perf_counter()
     r = O.Oracle(prog, far, time_limit=1.0).solve([-5.0, 0.0])

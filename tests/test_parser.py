@@ -229,7 +229,7 @@ task t{asap in g;deadline 4;tolerances 4,3,,2}
 """
     diags = diagnostics(src)
     prog = asap_dsl.loads(src.replace(",,", ","))
-    assert prog.system.consts == {"a": 1.0, "b": 2.0}
+    assert prog.system.consts == {"a": 1.0, "b": 2.0, "dt": 0.5}  # dt is a constant too
     assert prog.task("t").tolerances == (4, 3, 2)
     assert all(d.code != "E001" for d in diags)
 
@@ -332,3 +332,30 @@ def test_misspelt_clause_is_reported_once_not_also_its_number():
         asap_dsl.loads(_HOST + "task t { asap x < 1  dedline 3 }")
     e119 = [d for d in info.value.diagnostics if d.code == "E119"]
     assert len(e119) == 1 and "dedline" in e119[0].message
+
+
+# ---------------------------------------------------------------- units written apart
+@pytest.mark.parametrize("clause, fixed, at", [
+    ("deadline 15 s", "15s", "s\n"), ("tolerances 10 s, 5 s", "10s", "s, 5"), ("deadline 300 ms", "300ms", "ms"),
+])
+def test_a_unit_apart_from_its_number_is_one_error_at_the_unit(clause, fixed, at):
+    src = BASE.replace("deadline 30", "deadline 30s" if not clause.startswith("deadline") else clause).replace(
+        "  avoid in unsafe\n", "  avoid in unsafe\n" + (clause + "\n" if clause.startswith("tolerances") else ""))
+    found = diagnostics(src)
+    errors = [d for d in found if d.is_error]
+    assert errors[0].code == "E001" and f"write `{fixed}`" in errors[0].message
+    assert (errors[0].line, errors[0].column) == position(src, at)
+    assert all(d.code == "E001" for d in errors)  # nothing derived from a deadline read as 15 steps
+
+
+def test_a_unit_apart_in_an_episode_range_is_said_in_words():
+    src = BASE.replace("deadline 30", "deadline 3s\n  episode 2 s .. 3s")
+    (d,) = diagnostics(src)
+    assert d.code == "E001" and "write `2s`" in d.message
+
+
+def test_reward_settings_take_times():
+    prog = asap_dsl.loads(BASE.replace("deadline 30", "deadline 30\n  reward rho(window = 1s)"))
+    assert prog.task("t").reward.params["window"] == 10
+    found = diagnostics(BASE.replace("dt = 0.1", "dt = 0.1\n  integrator rk4(substeps = 2s)"))
+    assert [(d.code, "substeps takes a number, not a time" in d.message) for d in found if d.is_error] == [("E117", True)]

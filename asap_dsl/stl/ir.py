@@ -58,6 +58,8 @@ class Atom:
     satisfied: Callable[[np.ndarray], np.ndarray] = field(compare=False)
     # Bounds of the robustness over the state space (interval analysis), (-inf, inf) if unknown.
     bounds: tuple[float, float] = (-np.inf, np.inf)
+    # The region of an `in R` atom (None for a comparison).
+    region: Optional[str] = None
 
 
 @dataclass(frozen=True)
@@ -241,6 +243,31 @@ def measure(node: Formula, memo: Optional[dict] = None) -> tuple[int, int]:
         memo[id(n)] = (n, d, size)
     _, d, size = memo[id(node)]
     return d, size
+
+
+def positive_regions(node: Formula) -> tuple[str, ...]:
+    """The regions whose `in R` atoms occur positively in ``node`` (not under an odd number of
+    negations; the left side of ``->`` counts as negated), in order of first occurrence. What
+    the formula asks to be *in*, which lint compares with ``avoid`` and the distance reward
+    measures to. Linear in the shared structure (formulas used twice are walked once)."""
+    out: dict[str, None] = {}
+    seen: set[tuple[int, bool]] = set()
+    stack = [(node, True)]
+    while stack:
+        n, positive = stack.pop()
+        if (id(n), positive) in seen:
+            continue
+        seen.add((id(n), positive))
+        if isinstance(n, Atom):
+            if positive and n.region is not None:
+                out.setdefault(n.region)
+        elif isinstance(n, Not):
+            stack.append((n.arg, not positive))
+        elif isinstance(n, Implies):
+            stack += [(n.right, positive), (n.left, not positive)]
+        else:
+            stack.extend((c, positive) for c in reversed(children(n)))
+    return tuple(out)
 
 
 def is_causal(node: Formula) -> bool:
