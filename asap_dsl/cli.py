@@ -38,20 +38,26 @@ def _lint_file(path: str) -> tuple[list[Diagnostic], Optional[str], Optional[Pro
 def cmd_lint(args: argparse.Namespace) -> int:
     all_diags: list[Diagnostic] = []
     sources: dict[str, Optional[str]] = {}
+    skipped: list[dict] = []  # what --deep could not check, and why
     for path in args.files:
         diags, source, prog = _lint_file(path)
         if args.deep and prog is not None:
-            diags = diags + _deep_checks(prog, args)
+            deep, why = _deep_checks(prog, args)
+            diags = diags + deep
+            skipped += [{"file": path, "task": task, "reason": reason} for task, reason in why]
         all_diags += diags
         sources[path] = source
     errors = sum(d.is_error for d in all_diags)
     warnings = len(all_diags) - errors
     if args.format == "json":
         print(json.dumps({"files": args.files, "errors": errors, "warnings": warnings,
-                          "diagnostics": [d.as_dict() for d in all_diags]}, indent=2))
+                          "diagnostics": [d.as_dict() for d in all_diags],
+                          **({"deep_skipped": skipped} if args.deep else {})}, indent=2))
     else:
         if all_diags:
             print(format_report(all_diags, sources, args.max_diagnostics))
+        for s in skipped:
+            print(printable(f"{s['file']}: --deep did not check task '{s['task']}': {s['reason']}"))
         n = len(args.files)
         print(f"{n} file{'s' if n != 1 else ''} checked: {errors} error{'s' if errors != 1 else ''}, "
               f"{warnings} warning{'s' if warnings != 1 else ''}")
@@ -60,23 +66,24 @@ def cmd_lint(args: argparse.Namespace) -> int:
     return 0
 
 
-def _deep_checks(prog: Program, args: argparse.Namespace) -> list[Diagnostic]:
-    """``lint --deep``: sample initial states and ask the oracle whether the deadline is feasible."""
+def _deep_checks(prog: Program, args: argparse.Namespace) -> tuple[list[Diagnostic], list[tuple[str, str]]]:
+    """``lint --deep``: sample initial states and ask the oracle whether the deadline is feasible.
+    Returns the diagnostics and the tasks it could not check, each with the reason."""
     from .diagnostics import make
 
     if prog.system.kind == "simulator":
-        return []
-    try:
-        from .backends.oracle import deadline_infeasible
-    except ImportError:  # pragma: no cover - the oracle ships with the package
-        return []
-    out = []
+        why = f"system {prog.system.name} is a black-box simulator: the oracle needs known dynamics (ode or map)"
+        return [], [(name, why) for name in prog.tasks]
+    from .backends.oracle import deadline_infeasible
+
+    out, skipped = [], []
     for name in prog.tasks:
         task = prog.model.tasks[name]
         try:
             bad = deadline_infeasible(prog, name, samples=args.samples, seed=0, seconds=args.deep_seconds)
-        except ValueError:
-            continue  # a goal the oracle cannot express: nothing to say here
+        except ValueError as err:  # a goal the oracle cannot express: say so
+            skipped.append((name, str(err)))
+            continue
         decided = [b for b in bad if b[1] != "timeout"]
         undecided = [b for b in bad if b[1] == "timeout"]
         for group, says in ((decided, "cannot fulfil"), (undecided, "were not shown to fulfil")):
@@ -88,7 +95,7 @@ def _deep_checks(prog: Program, args: argparse.Namespace) -> list[Diagnostic]:
                             f"`asap` within the deadline of {task.deadline:,} steps, e.g. from {shown} ({reason})",
                             task.clause_spans["deadline"], prog.file,
                             hint="enlarge the deadline or the action bounds, or shrink the init box"))
-    return out
+    return out, skipped
 
 
 # ---------------------------------------------------------------------------------------- show
