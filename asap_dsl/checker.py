@@ -15,7 +15,7 @@ from typing import Callable, Iterable, Optional
 import numpy as np
 
 from . import ast
-from .diagnostics import Collector, Span
+from .diagnostics import Collector, Span, span_text
 from .diagnostics import closest as _closest
 from .expr import BUILTIN_CONSTANTS, FUNCTION_ARITY, Symbols, names_in, nodes_in, compile_batched, compile_scalar, evaluate_constant, interval_range
 from .domains import DomainChecker
@@ -75,14 +75,7 @@ class Checker:
 
     # ------------------------------------------------------------------ helpers
     def text(self, span: Span) -> str:
-        if span.line < 1 or span.line > len(self.lines):
-            return ""
-        if span.end_line == span.line:
-            return self.lines[span.line - 1][span.column - 1: span.end_column - 1]
-        first = self.lines[span.line - 1][span.column - 1:]
-        middle = self.lines[span.line: span.end_line - 1]
-        last = self.lines[span.end_line - 1][: span.end_column - 1] if span.end_line <= len(self.lines) else ""
-        return " ".join(x.strip() for x in [first, *middle, last])
+        return span_text(self.lines, span)
 
     def declare(self, name: str, kind: str, span: Span) -> bool:
         if name in BUILTIN_CONSTANTS:

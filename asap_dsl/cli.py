@@ -14,7 +14,7 @@ import sys
 from typing import Optional, Sequence
 
 from . import __version__
-from .diagnostics import SHOWN, Diagnostic, SpecError, format_report, printable, shorten
+from .diagnostics import SHOWN, Diagnostic, SpecError, format_report, printable, shorten, span_text
 from .limits import LIMITS
 from .program import Program, analyse, loads, read_source
 from .runs import json_safe
@@ -121,8 +121,13 @@ def show_data(prog: Program, only_task: Optional[str] = None) -> dict:
     """Everything ``asapc show`` prints, as plain data (also its JSON output)."""
     sys_ = prog.system
     integ = sys_.integrator
+    lines = prog.source.splitlines()
+    warnings = [d.as_dict() for d in prog.warnings]
     data = {
         "file": prog.file,
+        "errors": 0,
+        "warnings": len(warnings),
+        "diagnostics": warnings,
         "system": {
             "name": sys_.name,
             "dynamics": sys_.kind if sys_.kind != "simulator" else f'simulator "{sys_.simulator}"',
@@ -131,7 +136,7 @@ def show_data(prog: Program, only_task: Optional[str] = None) -> dict:
             "constants": {k: v for k, v in sys_.consts.items() if k != "dt"},  # dt has its own line
             "states": [{"name": s.name, "space": [s.low, s.high], "init": [s.init_low, s.init_high]} for s in sys_.states],
             "actions": [{"name": a.name, "bounds": [a.low, a.high]} for a in sys_.actions],
-            "lets": {k: prog.model.declared[k][1].line for k in sys_.lets},
+            "lets": {k: shorten(span_text(lines, e.span), 400) for k, e in sys_.lets.items()},
         },
         "regions": {n: r.describe() for n, r in prog.model.regions.items()},
         "formulas": {n: _formula_text(f.ir) for n, f in prog.model.formulas.items()},
@@ -146,7 +151,7 @@ def show_data(prog: Program, only_task: Optional[str] = None) -> dict:
             "asap": _formula_text(t.asap),
             "avoid": None if t.avoid is None else _formula_text(t.avoid),
             "specification": _formula_text(t.spec),
-            "horizon_steps": ir.horizon(t.spec),
+            "horizon_steps": _steps(ir.horizon(t.spec)),
             "deadline_steps": t.deadline,
             "deadline_seconds": t.deadline * sys_.dt,
             "tolerances": list(t.tolerances),
@@ -163,8 +168,22 @@ def show_data(prog: Program, only_task: Optional[str] = None) -> dict:
     return data
 
 
+def _steps(x: float):
+    """A whole number of steps, or inf (unbounded) as is: one type per field in the JSON."""
+    return int(x) if math.isfinite(x) else x
+
+
 def cmd_show(args: argparse.Namespace) -> int:
-    prog = _load(args.file)
+    try:
+        prog = _load(args.file)
+    except SpecError as err:
+        if args.format != "json":
+            raise
+        # The same shape as a file that compiles, with the diagnostics inside and no model.
+        errors = len(err.errors)
+        print(json.dumps({"file": args.file, "errors": errors, "warnings": len(err.diagnostics) - errors,
+                          "diagnostics": [d.as_dict() for d in err.diagnostics]}, indent=2))
+        return 1
     if args.task is not None and args.task not in prog.tasks:
         raise _UsageError(_unknown_task(args.task, prog))
     data = show_data(prog, args.task)
@@ -183,7 +202,7 @@ def cmd_show(args: argparse.Namespace) -> int:
         out.append("")
         out += _table([[a["name"], f"[{_fmt(a['bounds'][0])}, {_fmt(a['bounds'][1])}]"] for a in s["actions"]], ["action", "bounds"])
     if s["lets"]:
-        out.append("  lets: " + ", ".join(s["lets"]))
+        out += ["", "lets:"] + [f"  {n} = {e}" for n, e in s["lets"].items()]
     if data["regions"]:
         out += ["", "regions:"] + [f"  {n} = {d}" for n, d in data["regions"].items()]
     if data["formulas"]:
@@ -216,14 +235,21 @@ def cmd_show(args: argparse.Namespace) -> int:
 
 
 class _UsageError(Exception):
-    """A flag or argument that names something the spec does not have (exit 2)."""
+    """A flag or argument that is misused, or names something the spec does not have (exit 2,
+    ``asapc: error: ...``)."""
+
+
+def usage_error(message: str) -> Exception:
+    """The exception a subcommand raises for a misused flag: asapc prints it and exits 2."""
+    return _UsageError(message)
 
 
 def _unknown_task(name: str, prog: Program) -> str:
-    from .diagnostics import closest
-
-    sug = closest(name, prog.tasks)
-    return f"no task named '{name}' in {prog.file}" + (f"; did you mean '{sug}'?" if sug else f"; it has: {', '.join(prog.tasks)}")
+    try:
+        prog.task(name)
+    except KeyError as err:
+        return str(err.args[0])
+    return ""  # pragma: no cover - only called for a missing task
 
 
 def _load(path: str) -> Program:
@@ -234,7 +260,7 @@ def _load(path: str) -> Program:
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="asapc", description="Check, compile and solve .asap specifications of "
                                 "control tasks to fulfil as soon as possible.")
-    p.add_argument("--version", action="version", version=f"asapc {__version__}")
+    p.add_argument("-V", "--version", action="version", version=f"asapc {__version__}")
     p.add_argument("--max-spec-size", type=positive_int, metavar="MB", default=None,
                    help="read spec files up to this size (default 10 MB)")
     p.add_argument("--max-deadline", type=positive_int, metavar="STEPS", default=None,

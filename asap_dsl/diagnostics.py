@@ -157,6 +157,18 @@ _CONTROL.update({c: f"\\u{c:04x}" for c in range(0x80, 0xa0)})
 EXCERPT = 200  # characters of a source line shown around the problem
 
 
+def span_text(lines: list[str], span: Span) -> str:
+    """The source text of ``span`` (``lines`` are the file's lines), on one line."""
+    if span.line < 1 or span.line > len(lines):
+        return ""
+    if span.end_line == span.line:
+        return lines[span.line - 1][span.column - 1: span.end_column - 1]
+    first = lines[span.line - 1][span.column - 1:]
+    middle = lines[span.line: span.end_line - 1]
+    last = lines[span.end_line - 1][: span.end_column - 1] if span.end_line <= len(lines) else ""
+    return " ".join(x.strip() for x in [first, *middle, last])
+
+
 def printable(text: str) -> str:
     """``text`` safe for a terminal: control characters (ESC, BEL, ...) as visible escapes."""
     return text.translate(_CONTROL)

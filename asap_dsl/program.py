@@ -152,16 +152,17 @@ class Program:
                 raise KeyError(f"{self.file} has tasks {', '.join(self.tasks) or '(none)'}: name one")
             name = self.tasks[0]
         if name not in self.model.tasks:
-            raise KeyError(_missing("task", name, self.tasks))
+            raise KeyError(_missing("task", name, self.tasks, self.file))
         return Task(self.model.tasks[name], self.system.n_state)
 
 
-def _missing(kind: str, name: str, known: tuple[str, ...]) -> str:
+def _missing(kind: str, name: str, known: tuple[str, ...], file: Optional[str] = None) -> str:
+    """The one wording of an unknown task (or formula) name, everywhere it can be given."""
     from .diagnostics import closest
 
     sug = closest(name, known)
     tail = f"; did you mean '{sug}'?" if sug else f"; the file has: {', '.join(known) or 'none'}"
-    return f"no {kind} named '{name}'{tail}"
+    return f"no {kind} named '{name}'" + (f" in {file}" if file else "") + tail
 
 
 def normalise_newlines(text: str) -> str:

@@ -62,7 +62,7 @@ import itertools
 import math
 import time
 from dataclasses import dataclass, field, replace
-from typing import Any, Optional, Sequence
+from typing import Any, Callable, Optional, Sequence
 
 import numpy as np
 
@@ -736,14 +736,18 @@ class Oracle:
         return StateResult(index, x0, None, "solver_failed" if failures else "infeasible", False, failures,
                            solves, lb, seconds=time.perf_counter() - start, restarts=restarts)
 
-    def solve_many(self, states: np.ndarray, indices: Optional[Sequence[int]] = None) -> list[StateResult]:
-        """Solve ``states`` in nearest-neighbour order (warm starts), results in input order."""
+    def solve_many(self, states: np.ndarray, indices: Optional[Sequence[int]] = None,
+                   progress: Optional[Callable[[int], None]] = None) -> list[StateResult]:
+        """Solve ``states`` in nearest-neighbour order (warm starts), results in input order;
+        ``progress(1)`` after each state."""
         states = np.asarray(states, float).reshape(-1, self.n)
         idx = list(range(len(states))) if indices is None else list(indices)
         order = nearest_neighbour_order(states, self.system)
         out: list[Optional[StateResult]] = [None] * len(states)
         for k in order:
             out[k] = self.solve(states[k], idx[k])
+            if progress is not None:
+                progress(1)
 
         return out  # type: ignore[return-value]
 
@@ -891,28 +895,37 @@ def tighten(prog, reports: Sequence["OracleReport"]) -> dict[str, int]:
     return summary
 
 # --------------------------------------------------------------------------- drivers
+_WORKER_ORACLES: dict = {}  # in a worker process: one Oracle (and its built solvers) per setting
+
+
 def _worker(payload):
-    """Process entry: re-load the spec from its text (programs hold compiled closures)."""
+    """Process entry: re-load the spec from its text (programs hold compiled closures), once per
+    process and setting: the chunks a worker solves share its solvers and warm starts."""
     import asap_dsl
 
     source, name, task, states, indices, ipopt, restarts, interval_bound, time_limit = payload
-    prog = asap_dsl.loads(source, name)
-    oracle = Oracle(prog, task, ipopt, restarts, interval_bound, time_limit)
+    key = (source, name, task, repr(ipopt), restarts, interval_bound, time_limit)
+    oracle = _WORKER_ORACLES.get(key)
+    if oracle is None:
+        _WORKER_ORACLES.clear()
+        oracle = _WORKER_ORACLES[key] = Oracle(asap_dsl.loads(source, name), task, ipopt, restarts, interval_bound,
+                                               time_limit)
     return [r.to_dict(with_actions=True) for r in oracle.solve_many(states, indices)]
 
 
 def run(prog, task: Optional[str] = None, episodes: int = 1000, seed: int = EVAL_SEED, workers: int = 1,
         states: Optional[np.ndarray] = None, ipopt_options: Optional[dict] = None,
         restarts: Optional[int] = None, interval_bound: bool = True,
-        time_limit: float = STATE_TIME_LIMIT) -> OracleReport:
+        time_limit: float = STATE_TIME_LIMIT, progress: Optional[Callable[[int], None]] = None) -> OracleReport:
     """The oracle over ``episodes`` evaluation states (or the given ``states``).
 
     ``restarts`` / ``interval_bound``: see :class:`Oracle` (defaults: :data:`RESTARTS` extra
     initial guesses on non-linear systems, and the interval lower bound there).
 
     ``workers > 1`` splits the nearest-neighbour tour into contiguous chunks solved in separate
-    processes (each builds its own solvers). ``time_limit``: seconds of search per state, then
-    ``timeout``.
+    processes (each builds its own solvers; about eight chunks per worker, so that the work
+    stays balanced and progress is seen). ``time_limit``: seconds of search per state, then
+    ``timeout``. ``progress(k)`` is called as k more states are done.
     """
     start = time.perf_counter()
     oracle = Oracle(prog, task, ipopt_options, restarts, interval_bound, time_limit)  # validates system and task up front
@@ -925,17 +938,21 @@ def run(prog, task: Optional[str] = None, episodes: int = 1000, seed: int = EVAL
     states = np.asarray(states, float).reshape(-1, oracle.n)
     workers = max(1, min(int(workers), len(states)))
     if workers == 1:
-        results = oracle.solve_many(states)
+        results = oracle.solve_many(states, progress=progress)
     else:
         import multiprocessing as mp
 
         order = nearest_neighbour_order(states, prog.system)
-        chunks = np.array_split(np.asarray(order), workers)
+        chunks = np.array_split(np.asarray(order), min(len(states), 8 * workers))
         payloads = [(prog.source, prog.file, oracle.task_name, states[c], [int(i) for i in c], ipopt_options,
                      restarts, interval_bound, time_limit) for c in chunks if len(c)]
         method = "fork" if "fork" in mp.get_all_start_methods() else "spawn"
-        with mp.get_context(method).Pool(len(payloads)) as pool:
-            parts = pool.map(_worker, payloads)
+        parts = []
+        with mp.get_context(method).Pool(workers) as pool:
+            for part in pool.imap_unordered(_worker, payloads):
+                parts.append(part)
+                if progress is not None:
+                    progress(len(part))
         by_index = {d["index"]: StateResult.from_dict(d) for part in parts for d in part}
         results = [by_index[i] for i in range(len(states))]
         for r in results:  # trajectories are not shipped back: replay here (cheap)

@@ -12,6 +12,7 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+import time
 from typing import Optional, TextIO
 
 from asap_dsl.backends.oracle import STATE_TIME_LIMIT
@@ -24,8 +25,8 @@ def add_oracle_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--task", default=None, help="the task (default: every task of the file)")
     parser.add_argument("--episodes", type=episodes_int, default=1000,
                         help="initial states, the same as `asapc eval` draws (default 1000)")
-    parser.add_argument("--workers", type=positive_int, default=1,
-                        help="processes, each solving a chunk of the states (default 1; at most the cores)")
+    parser.add_argument("--workers", type=positive_int, default=None,
+                        help="processes solving chunks of the states (default: one per core; at most the cores)")
     parser.add_argument("--force-workers", action="store_true", help="allow more workers than cores")
     parser.add_argument("--seed", type=seed_int, default=EVAL_SEED,
                         help=f"seed of the initial states (default {EVAL_SEED}, as `asapc eval`)")
@@ -82,43 +83,69 @@ def render_text(report, out: TextIO) -> None:
                   f"{t['improved_states']} states improved\n")
 
 
+class _Progress:
+    """States done, rate and time left, on one line of a terminal (nothing elsewhere)."""
+
+    def __init__(self, stream: TextIO, task: str, total: int):
+        self.stream, self.task, self.total, self.done = stream, task, total, 0
+        self.start = time.perf_counter()
+        self.live = hasattr(stream, "isatty") and stream.isatty()
+
+    def __call__(self, k: int) -> None:
+        self.done += k
+        if not self.live:
+            return
+        spent = time.perf_counter() - self.start
+        rate = self.done / spent if spent > 0 else 0.0
+        left = (self.total - self.done) / rate if rate > 0 else float("inf")
+        eta = "--" if left == float("inf") else f"{int(left // 60)}m{int(left % 60):02d}s"
+        self.stream.write(f"\r  oracle {self.task}: {self.done}/{self.total} states, {rate:.2f} states/s, "
+                          f"{eta} left   ")
+        self.stream.flush()
+
+    def close(self) -> None:
+        if self.live and self.done:
+            self.stream.write("\r" + " " * 79 + "\r")
+            self.stream.flush()
+
+
 def oracle_command(args: argparse.Namespace, out: Optional[TextIO] = None, err: Optional[TextIO] = None) -> int:
-    """Run the oracle; exit 0 on success, 1 on a spec error or an unsupported system/task."""
+    """Run the oracle on every task (or ``--task``). Exit 0 when at least one task was solved,
+    1 on a spec error or when no task could be (each unsupported task is named, with the
+    operator that stops it), 2 on a misused flag (an unknown or empty ``--task`` included)."""
     import asap_dsl
     from asap_dsl.backends.oracle import OracleUnsupported, run, tighten
     from asap_dsl.backends.oracle_cache import store
+    from asap_dsl.cli import available_cores, check_workers, usage_error
 
     out = out or sys.stdout
     err = err or sys.stderr
-    from asap_dsl.cli import check_workers
-
-    check_workers(args.workers, getattr(args, "force_workers", False))
+    workers = args.workers if args.workers is not None else available_cores()
+    check_workers(workers, getattr(args, "force_workers", False))
     if args.task == "":
-        err.write("error: --task needs a task name (leave it out to solve every task)\n")
-        return 2
-    try:
-        prog = asap_dsl.load(args.file)
-    except asap_dsl.SpecError as e:
-        err.write(f"{e}\n")
-        return 1
-    tasks = [args.task] if args.task else list(prog.tasks)
-    if args.task and args.task not in prog.tasks:
+        raise usage_error("--task needs a task name (leave it out to solve every task)")
+    prog = asap_dsl.load(args.file)  # a SpecError is reported by asapc (exit 1)
+    if args.task is not None:
         try:
             prog.task(args.task)
         except KeyError as e:
-            err.write(f"error: {e.args[0]}\n")
-            return 1
+            raise usage_error(str(e.args[0])) from None
+    tasks = [args.task] if args.task else list(prog.tasks)
     if not tasks:
-        err.write(f"error: {args.file} has no task\n")
+        err.write(f"asapc: error: {args.file} has no task\n")
         return 1
-    reports = []
+    reports, skipped = [], []
     for t in tasks:
+        progress = _Progress(err, t, args.episodes)
         try:
-            rep = run(prog, t, episodes=args.episodes, seed=args.seed, workers=args.workers,
-                      time_limit=getattr(args, "state_time_limit", STATE_TIME_LIMIT))
+            rep = run(prog, t, episodes=args.episodes, seed=args.seed, workers=workers,
+                      time_limit=getattr(args, "state_time_limit", STATE_TIME_LIMIT), progress=progress)
         except OracleUnsupported as e:
-            err.write(f"error: {args.file}: task {t}: {e}\n")
-            return 1
+            skipped.append({"task": t, "reason": str(e)})
+            err.write(f"asapc: {'error' if args.task else 'note'}: {args.file}: task {t} is not solved: {e}\n")
+            continue
+        finally:
+            progress.close()
         reports.append(rep)
     if len(reports) > 1:  # tasks sharing `asap`: make their local minima consistent (replay-verified)
         tighten(prog, reports)
@@ -129,12 +156,12 @@ def oracle_command(args: argparse.Namespace, out: Optional[TextIO] = None, err: 
             if i:
                 out.write("\n")
             render_text(rep, out)
-    if args.format == "json":
-        payload = [r.to_dict(with_states=getattr(args, "states", False), with_actions=getattr(args, "states", False))
-                   for r in reports]
-        json.dump(payload[0] if args.task else {"file": args.file, "tasks": payload}, out, indent=2)
+    if args.format == "json":  # one shape, with or without --task
+        states = getattr(args, "states", False)
+        json.dump({"file": args.file, "tasks": [r.to_dict(with_states=states, with_actions=states) for r in reports],
+                   "skipped": skipped}, out, indent=2)
         out.write("\n")
-    return 0
+    return 0 if reports else 1
 
 
 def main(argv: Optional[list[str]] = None) -> int:  # for `python -m asap_dsl.backends.oracle_cli`

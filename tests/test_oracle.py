@@ -205,22 +205,23 @@ def test_unsupported_inputs_are_clear():
         O.Oracle(swimmer, "reach")
 
 
-def _cli(argv):
-    import argparse
+def _cli(capsys, argv):
+    """``asapc oracle ARGV`` in this process: (exit status, stdout, stderr)."""
+    from asap_dsl import cli
 
-    p = argparse.ArgumentParser()
-    add_oracle_arguments(p)
-    args = p.parse_args(argv)
-    out, err = io.StringIO(), io.StringIO()
-    return oracle_command(args, out, err), out.getvalue(), err.getvalue()
+    code = cli.main(["oracle", *argv])
+    captured = capsys.readouterr()
+    return code, captured.out, captured.err
 
 
-def test_command_json_text_and_errors(tmp_path):
+def test_command_json_text_and_errors(tmp_path, capsys):
     f = tmp_path / "di.asap"
     f.write_text(DOUBLE_INTEGRATOR_ODE)
-    rc, out, _ = _cli([str(f), "--episodes", "12", "--format", "json", "--task", "rest", "--states"])
+    rc, out, _ = _cli(capsys, [str(f), "--episodes", "12", "--format", "json", "--task", "rest", "--states"])
     assert rc == 0
-    d = json.loads(out)
+    whole = json.loads(out)
+    assert set(whole) == {"file", "tasks", "skipped"} and whole["skipped"] == []  # the shape with or without --task
+    d = whole["tasks"][0]
     assert d["label"] == "exact" and d["episodes"] == 12 and len(d["states"]) == 12
     rates = [row["rate"] for row in d["ceiling"]]
     assert [row["tolerance"] for row in d["ceiling"]] == [12, 6, 4] and rates == sorted(rates, reverse=True)
@@ -228,14 +229,19 @@ def test_command_json_text_and_errors(tmp_path):
         assert row["ci95"][0] <= row["rate"] <= row["ci95"][1]
     for s in d["states"]:
         assert s["status"] in ("solved", "infeasible") and (s["steps"] is None or s["steps"] <= 12)
-    rc, out, _ = _cli([str(f), "--episodes", "5"])
+    rc, out, _ = _cli(capsys, [str(f), "--episodes", "5", "--format", "json"])
+    assert rc == 0 and set(json.loads(out)) == {"file", "tasks", "skipped"}
+    rc, out, _ = _cli(capsys, [str(f), "--episodes", "5"])
     assert rc == 0 and "oracle (exact)" in out and "tolerance" in out
-    rc, _, err = _cli([str(SPECS / "swimmer.asap"), "--episodes", "5"])
+    rc, _, err = _cli(capsys, [str(SPECS / "swimmer.asap"), "--episodes", "5"])
     assert rc == 1 and "no known dynamics" in err and "Traceback" not in err
-    rc, _, err = _cli([str(f), "--task", "nope"])
-    assert rc == 1 and "no task named 'nope'" in err
-    with pytest.raises(SystemExit):
-        _cli([str(f), "--workers", "0"])
+    # an unknown or empty --task is a misused flag: exit 2 and the wording of every subcommand
+    with pytest.raises(SystemExit) as stop:
+        _cli(capsys, [str(f), "--task", "nope"])
+    assert stop.value.code == 2 and "asapc: error: no task named 'nope' in" in capsys.readouterr().err
+    with pytest.raises(SystemExit) as stop:
+        _cli(capsys, [str(f), "--workers", "0"])
+    assert stop.value.code == 2
 
 
 def test_workers_agree_with_single_process():
