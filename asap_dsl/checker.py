@@ -98,7 +98,7 @@ class Checker:
         hint = f"did you mean '{suggestion}'?" if suggestion else None
         if name in self.kinds:
             kind = self.kinds[name][0]
-            self.d.add("E103", f"'{name}' is a {kind}, not a {what}", span, hint=_kind_hint(name, kind, wanted))
+            self.d.add("E103", f"'{name}' is {_a(kind)}, not a {what}", span, hint=_kind_hint(name, kind, wanted))
             return
         self.d.add("E101", msg, span, hint)
 
@@ -131,7 +131,7 @@ class Checker:
                            hint=_context_hint(context))
                 raise _Unresolved
             if kind in (FORMULA, REGION):
-                self.d.add("E116", f"'{e.id}' is a {kind}, not a number", e.span,
+                self.d.add("E116", f"'{e.id}' is {_a(kind)}, not a number", e.span,
                            hint=f"write `in {e.id}` for the condition of being in the region" if kind == REGION else None)
                 raise _Unresolved
             self.unknown(e.id, e.span, tuple(k for k in allowed))
@@ -352,7 +352,7 @@ class Checker:
         kind = self.kinds.get(e.id, (None,))[0]
         if kind != FORMULA:
             if kind in (STATE, LET, CONST, ACTION):
-                self.d.add("E116", f"'{e.id}' is a {kind}, a number, not a condition", e.span,
+                self.d.add("E116", f"'{e.id}' is {_a(kind)}, a number, not a condition", e.span,
                            hint=f"compare it, for example `{e.id} > 0`")
             elif kind == REGION:
                 self.d.add("E116", f"'{e.id}' is a region, not a condition", e.span, hint=f"write `in {e.id}`")
@@ -616,7 +616,7 @@ class Checker:
                     self.d.add("E101", f"unknown state '{eq.target}' in {dyn.kind}", eq.target_span,
                                hint=f"did you mean '{sug}'?" if sug else None)
                 else:
-                    self.d.add("E110", f"'{eq.target}' is a {kind}; {dyn.kind} equations are for states", eq.target_span)
+                    self.d.add("E110", f"'{eq.target}' is {_a(kind)}; {dyn.kind} equations are for states", eq.target_span)
                 errors += 1
                 continue
             if eq.target in given:
@@ -704,7 +704,7 @@ class Checker:
         if kind is None:
             self.unknown(name, span, (STATE, LET))
         else:
-            self.d.add("E103", f"'{name}' is a {kind}; a region is over states and lets", span)
+            self.d.add("E103", f"'{name}' is {_a(kind)}; a region is over states and lets", span)
         raise _Unresolved
 
     def region(self, r: ast.RegionDecl, state_names: list[str]) -> RegionModel:
@@ -851,13 +851,63 @@ class Checker:
         if "observe" in clauses:
             observe = attempt(self.observe, clauses["observe"].value, default=("state",))
         train = attempt(self.train, clauses["train"].value, default={}) if "train" in clauses else {}
+        init_box = attempt(self.task_init, clauses["init"].value) if "init" in clauses else None
         if errors or asap is None or deadline is None:
             return None
         return TaskModel(
             t.name, asap, avoid, deadline, tolerances, episode, reward or RewardModel(), r_sat, observe, train, t.span,
             {k: c.span for k, c in clauses.items()},
-            asap_regions, ir.positive_regions(avoid) if avoid is not None else (),
+            asap_regions, ir.positive_regions(avoid) if avoid is not None else (), init_box,
         )
+
+    def task_init(self, box: ast.Box) -> tuple[tuple[float, ...], tuple[float, ...]]:
+        """``init box(theta in [a, b], ...)``: the task's initial box, each named state's range
+        replacing the system's (the others keep theirs), with the checks of a state's `init`."""
+        by_name = {s.name: s for s in self.states}
+        low = [s.init_low for s in self.states]
+        high = [s.init_high for s in self.states]
+        seen: dict[str, Span] = {}
+        errors = 0
+        if not box.sides:
+            self.d.add("E117", "`init box()` names no state", box.span, hint="write init box(x in [a, b], ...)")
+            raise _Unresolved
+        for side in box.sides:
+            state = by_name.get(side.var)
+            if state is None:
+                kind = self.kinds.get(side.var, (None,))[0]
+                if kind is None:
+                    sug = _closest(side.var, list(by_name))
+                    self.d.add("E101", f"unknown state '{side.var}' in the task's init box", side.span,
+                               hint=f"did you mean '{sug}'?" if sug else None)
+                else:
+                    self.d.add("E103", f"'{side.var}' is {_a(kind)}; an initial box is over states", side.span)
+                errors += 1
+                continue
+            if side.var in seen:
+                self.d.add("E102", f"state '{side.var}' is given twice in the init box (first at line {seen[side.var].line})",
+                           side.span)
+                errors += 1
+                continue
+            seen[side.var] = side.span
+            try:
+                lo, hi = self.range_(side.bounds, f"the init range of '{side.var}'")
+            except _Unresolved:
+                errors += 1
+                continue
+            if lo < state.low or hi > state.high:
+                self.d.add("E108", f"the init range [{_fmt(lo)}, {_fmt(hi)}] of '{side.var}' is not inside its state space "
+                           f"[{_fmt(state.low)}, {_fmt(state.high)}]", side.bounds.span)
+                errors += 1
+                continue
+            if not (math.isfinite(lo) and math.isfinite(hi) and math.isfinite(hi - lo)):
+                self.d.add("E122", f"the init range [{_fmt(lo)}, {_fmt(hi)}] of '{side.var}' cannot be sampled uniformly: "
+                           "it must be finite", side.bounds.span)
+                errors += 1
+                continue
+            low[state.index], high[state.index] = lo, hi
+        if errors:
+            raise _Unresolved
+        return tuple(low), tuple(high)
 
     def positive_steps(self, d: ast.Duration, what: str) -> int:
         n = self.steps(d, what)
@@ -1016,6 +1066,11 @@ def dependency_order(names: list[str], deps: Callable[[str], Iterable[str]]) -> 
                     state[name] = DONE
                     order.append(name)
     return order, cyclic
+
+
+def _a(word: str) -> str:
+    """``word`` with its article: a state, an action."""
+    return ("an " if word[:1] in "aeiou" else "a ") + word
 
 
 def _fmt(x: float) -> str:

@@ -158,6 +158,7 @@ def show_data(prog: Program, only_task: Optional[str] = None) -> dict:
             "episode": list(t.episode),
             "reward": t.reward.text,
             "observe": list(t.observe),
+            "init": None if t.init_box is None else [[lo, hi] for lo, hi in zip(*t.init_box)],
             "rho_bounds": [lo, hi],
             "rho_scale": t.rho_scale if t.r_sat is None else 1.0,
             "r_sat": t.r_sat_value,
@@ -213,6 +214,9 @@ def cmd_show(args: argparse.Namespace) -> int:
                 f"  asap           {t['asap']}",
                 f"  avoid          {t['avoid'] or '(none)'}",
                 f"  specification  {t['specification']}",
+                *([] if t["init"] is None else [
+                    "  init           box(" + ", ".join(f"{x['name']} in [{_fmt(lo)}, {_fmt(hi)}]"
+                                                     for x, (lo, hi) in zip(s["states"], t["init"])) + ")"]),
                 f"  horizon        {_fmt(t['horizon_steps'])} steps",
                 f"  deadline       {t['deadline_steps']} steps ({_fmt(t['deadline_seconds'])} s)",
                 f"  tolerances     {', '.join(map(str, t['tolerances']))}",

@@ -114,7 +114,7 @@ class _Core:
 
 
     def _sample(self, m: int):
-        s0 = initial_states(self.system, m, self.rng, self.tm.avoid)
+        s0 = initial_states(self.system, m, self.rng, self.tm.avoid, box=self.tm.init_box)
         k = self.rng.integers(self.kmin, self.kmax + 1, size=m)
         return s0, k
 

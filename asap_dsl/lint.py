@@ -93,14 +93,16 @@ class InitInsideAvoid(LintRule):
     def check(self, prog, out):
         from .stl import offline
 
+        from .sampling import init_box
+
         sys_ = prog.system
-        lo, hi = sys_.init_low, sys_.init_high
-        if not (np.all(np.isfinite(lo)) and np.all(np.isfinite(hi)) and np.all(np.isfinite(hi - lo))):
-            return  # E122 says so
-        states = np.random.default_rng(0).uniform(lo, hi, size=(self.SAMPLES, sys_.n_state))
         for t in prog.tasks.values():
             if t.avoid is None:
                 continue
+            lo, hi = init_box(sys_, t.init_box)  # the task's own box, if it has one
+            if not (np.all(np.isfinite(lo)) and np.all(np.isfinite(hi)) and np.all(np.isfinite(hi - lo))):
+                continue  # E122 says so
+            states = np.random.default_rng(0).uniform(lo, hi, size=(self.SAMPLES, sys_.n_state))
             if offline.satisfied(t.avoid, states[:, None, :])[:, 0].all():
                 out.add(self.code, f"`avoid` of task '{t.name}' holds at every one of {self.SAMPLES} initial states "
                         "drawn from the init box: no episode can start", t.clause_spans["avoid"],

@@ -210,6 +210,9 @@ class TaskModel:
     clause_spans: Mapping[str, Span]
     asap_regions: tuple[str, ...]  # regions of `in R` atoms occurring positively in asap / avoid
     avoid_regions: tuple[str, ...]
+    # The task's own initial box (`init box(...)`), every state's range, those it does not name
+    # from the system's `init`; None: the system's box.
+    init_box: Optional[tuple[tuple[float, ...], tuple[float, ...]]] = None
 
     @property
     def spec(self) -> ir.Formula:

@@ -31,7 +31,7 @@ _CANONICAL = {
     "since": "since", "S": "since",
 }
 
-_TASK_CLAUSES = ("asap", "avoid", "deadline", "tolerances", "episode", "reward", "r_sat", "observe", "train")
+_TASK_CLAUSES = ("asap", "avoid", "deadline", "tolerances", "episode", "reward", "r_sat", "observe", "init", "train")
 
 # Plain words for the grammar's named terminals (punctuation and keywords print as themselves).
 _TERMINAL_WORDS = {
@@ -534,6 +534,9 @@ class _Builder(Transformer):
 
     def episode_clause(self, meta, children):
         return ast.Clause("episode", (children[0], children[1]), _span(meta))
+
+    def task_init_clause(self, meta, children):
+        return ast.Clause("init", children[0], _span(meta))
 
     def reward_kind(self, meta, children):
         return (str(children[0]), _span_of_token(children[0]))

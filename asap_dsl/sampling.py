@@ -17,10 +17,21 @@ from .stl import ir
 EVAL_SEED = 2024  # the default seed of `asapc eval` and `asapc oracle`
 
 
+Box = tuple  # (low, high): a task's own initial box, or None for the system's
+
+
+def init_box(system: SystemModel, box: Optional[Box] = None) -> tuple[np.ndarray, np.ndarray]:
+    """(low, high) of the initial states: ``box`` (a task's ``init box(...)``) or the system's."""
+    if box is None:
+        return system.init_low, system.init_high
+    return np.asarray(box[0], dtype=float), np.asarray(box[1], dtype=float)
+
+
 def initial_states(system: SystemModel, n: int, rng: np.random.Generator,
-                   avoid: Optional[ir.Formula] = None, max_rounds: int = 100) -> np.ndarray:
-    """``n`` states drawn uniformly from the init box, none of them in ``avoid`` at step 0."""
-    low, high = system.init_low, system.init_high
+                   avoid: Optional[ir.Formula] = None, max_rounds: int = 100, box: Optional[Box] = None) -> np.ndarray:
+    """``n`` states drawn uniformly from the init box (a task's own, or the system's), none of
+    them in ``avoid`` at step 0."""
+    low, high = init_box(system, box)
     out = rng.uniform(low, high, size=(n, system.n_state))
     if avoid is None:
         return out
@@ -34,6 +45,12 @@ def initial_states(system: SystemModel, n: int, rng: np.random.Generator,
     raise ValueError("the init box lies (almost) entirely inside `avoid`: no initial state could be drawn outside it")
 
 
-def evaluation_states(system: SystemModel, n: int, seed: int = EVAL_SEED, avoid: Optional[ir.Formula] = None) -> np.ndarray:
+def evaluation_states(system: SystemModel, n: int, seed: int = EVAL_SEED, avoid: Optional[ir.Formula] = None,
+                      box: Optional[Box] = None) -> np.ndarray:
     """The seeded initial states of ``asapc eval`` and ``asapc oracle`` (paired across methods)."""
-    return initial_states(system, n, np.random.default_rng(seed), avoid)
+    return initial_states(system, n, np.random.default_rng(seed), avoid, box=box)
+
+
+def task_states(system: SystemModel, task, n: int, seed: int = EVAL_SEED) -> np.ndarray:
+    """The seeded initial states of a task (its ``avoid``, its initial box)."""
+    return evaluation_states(system, n, seed, task.avoid, task.init_box)

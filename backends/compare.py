@@ -15,7 +15,7 @@ import numpy as np
 
 from asap_dsl.rollout import Evaluator
 from asap_dsl.runs import atomic_write_json, json_safe, package_versions, spec_hash
-from asap_dsl.sampling import EVAL_SEED, evaluation_states
+from asap_dsl.sampling import EVAL_SEED, task_states
 
 from . import plots
 from .report import REWARD_NAMES, Column, Method, ReportData, unique, write
@@ -88,7 +88,7 @@ def _examples(prog, task: str, result: dict, oracle, n: int = 4) -> Optional[dic
 
     loaded = load_run(result["run_dir"])
     tm = prog.task(task).model
-    states = evaluation_states(prog.system, n, seed=EVAL_SEED, avoid=tm.avoid)
+    states = task_states(prog.system, tm, n, seed=EVAL_SEED)
     asap = prog.task(task).asap
 
     def rho(res):
@@ -151,7 +151,7 @@ def compare(specs: Sequence[str], *, tasks: Optional[Sequence[str]] = None,
             col.bound = oracle.bound
             col.oracle_steps = [None if not np.isfinite(x) else int(x) for x in oracle.steps]
         columns.append(col)
-        states = evaluation_states(prog.system, episodes, seed=EVAL_SEED, avoid=tm.avoid)
+        states = task_states(prog.system, tm, episodes, seed=EVAL_SEED)
         for method, kind in ((greedy, "greedy"), (replay, "oracle")):
             ev = _baseline(prog, job.task, kind, states, oracle, out_dir / "methods")
             if ev is not None:

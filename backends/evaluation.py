@@ -24,7 +24,7 @@ from asap_dsl.diagnostics import SpecError
 from asap_dsl.program import Program, loads, read_source
 from asap_dsl.rollout import Evaluator, RolloutResult
 from asap_dsl.runs import RunDir, RunError, atomic_write_json, spec_hash
-from asap_dsl.sampling import EVAL_SEED, evaluation_states
+from asap_dsl.sampling import EVAL_SEED, task_states
 from asap_dsl.stats import asap_gap, rate, steps_summary
 
 from .config import ConfigError, TrainConfig
@@ -190,7 +190,8 @@ def load_run(path: Union[str, Path], spec: Union[str, Path, None] = None) -> Loa
         model = load_model(config.algo, model_path)
     except Exception as err:  # noqa: BLE001 — a damaged or foreign zip: one line, not a trace
         raise RunError(f"{model_path}: cannot load the model ({type(err).__name__}: {str(err).splitlines()[0] if str(err) else ''})") from None
-    scaling = Scaling.for_system(prog.system, config.observation_scaling, config.action_scaling)
+    scaling = Scaling.for_system(prog.system, config.observation_scaling, config.action_scaling,
+                                 prog.task(config.task).model.init_box)
     expected = prog.system.n_state + int("time" in prog.task(config.task).model.observe)  # the env's observation
     if tuple(model.observation_space.shape) != (expected,):
         raise RunError(f"{model_path}: the model observes {model.observation_space.shape[0]} values, "
@@ -223,7 +224,7 @@ def evaluate(run: Union[str, Path], *, episodes: int = 1000, tolerances: Optiona
         if not 1 <= int(T) <= task.deadline:
             raise ValueError(f"tolerance {T} is outside 1..{task.deadline} (the task's deadline: episodes end there)")
     start = time.perf_counter()
-    states = evaluation_states(prog.system, int(episodes), seed=seed, avoid=task.avoid)
+    states = task_states(prog.system, task.model, int(episodes), seed=seed)
     result = Evaluator(prog, cfg.task, states, reward=cfg.reward).run(loaded.controller())
     seconds = time.perf_counter() - start
     ceiling = None

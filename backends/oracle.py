@@ -71,7 +71,7 @@ from asap_dsl.diagnostics import Span
 from asap_dsl.dynamics import casadi_step, numpy_step
 from asap_dsl.expr import INTERVAL, casadi_namespace, compile_function, degree
 from asap_dsl.intervals import Interval
-from asap_dsl.sampling import EVAL_SEED, evaluation_states
+from asap_dsl.sampling import EVAL_SEED, task_states
 from asap_dsl.stats import steps_summary, wilson_interval
 from asap_dsl.stl import ir, offline
 
@@ -931,7 +931,7 @@ def run(prog, task: Optional[str] = None, episodes: int = 1000, seed: int = EVAL
     oracle = Oracle(prog, task, ipopt_options, restarts, interval_bound, time_limit)  # validates system and task up front
     t = oracle.task.model
     if states is None:
-        states = evaluation_states(prog.system, episodes, seed=seed, avoid=t.avoid)
+        states = task_states(prog.system, t, episodes, seed=seed)
         used_seed: Optional[int] = seed
     else:
         used_seed = None
@@ -981,7 +981,7 @@ def deadline_infeasible(prog, task_name: Optional[str] = None, samples: int = 32
     workers = max(1, min(workers, samples))
     per_state = max(0.5, seconds * workers / max(1, samples))
     oracle = Oracle(prog, task_name, time_limit=per_state)
-    states = evaluation_states(prog.system, samples, seed=seed, avoid=oracle.task.model.avoid)
+    states = task_states(prog.system, oracle.task.model, samples, seed=seed)
     report = run(prog, oracle.task_name, states=states, workers=workers, time_limit=per_state)
     how = {
         "infeasible": "proved by a convex problem" if oracle.label == "exact" else "a local search (IPOPT) found no way",

@@ -42,13 +42,15 @@ class Scaling:
     act_high: Optional[np.ndarray]
 
     @classmethod
-    def for_system(cls, system, observation: str = "none", action: bool = False) -> "Scaling":
+    def for_system(cls, system, observation: str = "none", action: bool = False, init_box=None) -> "Scaling":
+        """``init_box``: the task's own initial box, if it has one (observations scaled from it)."""
+        from asap_dsl.sampling import init_box as _init_box
+
         n = system.n_state
         if observation == "none":
             centre, half = np.zeros(n), np.ones(n)
         elif observation in ("init", "state"):
-            lo = system.init_low if observation == "init" else system.state_low
-            hi = system.init_high if observation == "init" else system.state_high
+            lo, hi = _init_box(system, init_box) if observation == "init" else (system.state_low, system.state_high)
             centre, half = (lo + hi) / 2.0, (hi - lo) / 2.0
             bad = ~np.isfinite(centre) | ~np.isfinite(half) | (half <= 0)
             if bad.any():  # an unbounded or degenerate side: leave that entry as it is

@@ -28,7 +28,7 @@ from asap_dsl.program import Program, load
 from asap_dsl.rollout import Evaluator
 from asap_dsl.runs import (RunDir, RunError, atomic_path, atomic_write, atomic_write_json, default_run_name,
                            package_versions, spec_hash)
-from asap_dsl.sampling import evaluation_states
+from asap_dsl.sampling import task_states
 
 from .config import ConfigError, TrainConfig, resolve_config
 from .presets import OFF_POLICY
@@ -204,11 +204,10 @@ class _Session:
             torch.set_num_threads(cfg.torch_threads)
         self.task = prog.task(cfg.task).model
         self.tolerances = sorted(self.task.tolerances)
-        self.scaling = Scaling.for_system(prog.system, cfg.observation_scaling, cfg.action_scaling)
+        self.scaling = Scaling.for_system(prog.system, cfg.observation_scaling, cfg.action_scaling, self.task.init_box)
         self.raw_env = make_vec_env(prog, cfg.task, num_envs=cfg.n_envs, seed=cfg.seed, reward=cfg.reward)
         self.env = _LearnerEnv(ScaledVecEnv(self.raw_env, self.scaling), cfg.time_limit_terminal)
-        val_states = evaluation_states(prog.system, cfg.validation_episodes, seed=cfg.validation_seed,
-                                       avoid=self.task.avoid)
+        val_states = task_states(prog.system, self.task, cfg.validation_episodes, seed=cfg.validation_seed)
         self.validator = Evaluator(prog, cfg.task, val_states, reward=cfg.reward)
         self.curves: list[dict] = []
         self.best: Optional[dict] = None

@@ -25,7 +25,7 @@ import numpy as np
 
 import asap_dsl
 from asap_dsl.rollout import Evaluator
-from asap_dsl.sampling import EVAL_SEED, evaluation_states
+from asap_dsl.sampling import EVAL_SEED, task_states
 
 SPECS = Path(__file__).resolve().parents[1] / "specs"
 
@@ -40,7 +40,7 @@ def _time_to_ceiling(spec: Path, task: str, preset: str, seed: int, ceiling: dic
     prog = asap_dsl.load(spec)
     cfg = resolve_config(prog, task, preset=preset, seed=seed, steps=steps, n_envs=n_envs, settings=settings)
     tm = prog.task(task).model
-    states = evaluation_states(prog.system, 1000, seed=EVAL_SEED, avoid=tm.avoid)
+    states = task_states(prog.system, tm, 1000, seed=EVAL_SEED)
     judge = Evaluator(prog, task, states, reward=cfg.reward)
     scaling = Scaling.for_system(prog.system, cfg.observation_scaling, cfg.action_scaling)
     out = {"preset": preset, "seed": seed, "seconds": None, "steps": None, "rates": None, "history": []}
