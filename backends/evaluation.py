@@ -224,7 +224,7 @@ def evaluate(run: Union[str, Path], *, episodes: int = 1000, tolerances: Optiona
         if not 1 <= int(T) <= task.deadline:
             raise ValueError(f"tolerance {T} is outside 1..{task.deadline} (the task's deadline: episodes end there)")
     start = time.perf_counter()
-    states = task_states(prog.system, task.model, int(episodes), seed=seed)
+    states = task_states(prog.system, task, int(episodes), seed=seed)
     result = Evaluator(prog, cfg.task, states, reward=cfg.reward).run(loaded.controller())
     seconds = time.perf_counter() - start
     ceiling = None
