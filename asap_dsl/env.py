@@ -1,6 +1,6 @@
 """A task of a spec as a gymnasium environment, single or truly batched, with the ASAP-Phi reward.
 
-Episodes follow the paper's Algorithm 1 and 2 (LANGUAGE.md, "Tasks"):
+Episodes follow the paper's Algorithm 1 and 2 (docs/language.md, "Tasks"):
 
 * ``reset``: the episode length ``k ~ U{kmin, ..., kmax}``, the initial state ``s0 ~ U(init box)``
   (redrawn while ``avoid`` holds at step 0; :func:`asap_dsl.sampling.initial_states`).

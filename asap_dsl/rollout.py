@@ -6,7 +6,7 @@ task's environment (no autoreset), the episode lasts the task's deadline, the co
 called once per step for the whole batch, and an entry's episode ends at its first failure
 (``avoid``, leaving the state space, a non-finite state) or at the deadline.
 
-Success at tolerance T (ARCHITECTURE.md, "Evaluation rules"): ``asap`` holds at some step
+Success at tolerance T (docs/training.md, "Evaluation"): ``asap`` holds at some step
 ``<= T`` with no ``avoid`` hit and no exit from the state space before it. ``t_reach`` is that
 first step (``inf`` if none).
 

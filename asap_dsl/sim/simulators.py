@@ -1,6 +1,6 @@
 """Batched simulators: the system of a spec as ``reset(states [B, n])`` / ``step(actions [B, m])``.
 
-The simulator protocol (ARCHITECTURE.md), which ``simulator "package.module:factory"`` must return:
+The simulator protocol (docs/language.md, "Dynamics"), which ``simulator "package.module:factory"`` must return:
 
 * attributes ``state_dim``, ``action_dim``, ``dt``;
 * ``reset(states [B, n]) -> states [B, n]``: set every entry of the batch to the given state;
