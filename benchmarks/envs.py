@@ -63,8 +63,12 @@ def main():
     ap.add_argument("--task", default="reach_avoid")
     ap.add_argument("--only", default=None, help="run only the rows whose spec or task name contains this")
     args = ap.parse_args()
-    print(f"{'spec':17s} {'task':12s} {'envs':>5s} {'batched':>12s} {'arrays':>12s} {'sync':>12s} {'ratio':>7s}"
-          "   (env steps/s)")
+    print("env steps per second (summed over the entries), random actions:\n"
+          "  batched  AsapVecEnv.step, the SB3 interface with its info dicts (what training uses)\n"
+          "  arrays   AsapVecEnv.step_arrays, the same step returning arrays only (what evaluation uses)\n"
+          "  sync     gymnasium's SyncVectorEnv over single AsapEnvs (the peer)\n"
+          "  ratio    batched / sync\n")
+    print(f"{'spec':17s} {'task':12s} {'envs':>5s} {'batched':>12s} {'arrays':>12s} {'sync':>12s} {'ratio':>7s}")
     for path, task, n in CASES:
         task = task or args.task
         if args.only and args.only not in path.stem and args.only not in task:
