@@ -65,7 +65,7 @@ def main():
     args = ap.parse_args()
     print("env steps per second (summed over the entries), random actions:\n"
           "  batched  AsapVecEnv.step, the SB3 interface with its info dicts (what training uses)\n"
-          "  arrays   AsapVecEnv.step_arrays, the same step returning arrays only (what evaluation uses)\n"
+          "  arrays   AsapVecEnv.step_arrays, the same step returning arrays only (no info dicts built)\n"
           "  sync     gymnasium's SyncVectorEnv over single AsapEnvs (the peer)\n"
           "  ratio    batched / sync\n")
     print(f"{'spec':17s} {'task':12s} {'envs':>5s} {'batched':>12s} {'arrays':>12s} {'sync':>12s} {'ratio':>7s}")
