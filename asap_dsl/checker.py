@@ -346,7 +346,7 @@ class Checker:
 
         self.check_domains([e.left, e.right], "this condition")
         bounds = interval_range(margin, symbols, self.state_box())
-        return ir.Atom(self.text(e.span), rho, satisfied, (bounds.lo, bounds.hi))
+        return ir.Atom(self.text(e.span), rho, satisfied, (bounds.lo, bounds.hi), margin=margin)
 
     def formula_ref(self, e: ast.Name, causal_clause: Optional[str]) -> ir.Formula:
         kind = self.kinds.get(e.id, (None,))[0]

@@ -1,7 +1,11 @@
 """The minimum-time oracle: the fewest steps in which *any* admissible policy can fulfil a task.
 
-For a task whose ``asap`` and ``avoid`` are built from region atoms (``in R``, with ``not``,
-``and``, ``or``, ``->``) on a system with known dynamics (``ode`` or ``map``), the oracle computes
+For a task whose ``asap`` is built from conditions on the state (regions ``in R`` and comparisons
+such as ``x > 4``) with ``not``, ``and``, ``or``, ``->`` and the past operators ``historically``
+and ``once`` over windows (unfolded into one condition per step of the window: a dwell
+``historically[0, 2] in home`` constrains the last three states), and whose ``avoid`` is such a
+condition without temporal operators, on a system with known dynamics (``ode`` or ``map``), the
+oracle computes
 for each initial state x0 the smallest N such that some action sequence within the action bounds
 reaches ``asap`` at step N, with ``avoid`` false and the state inside the state space at steps
 1..N, under the simulator's very discretisation (:func:`asap_dsl.dynamics.casadi_step`).
@@ -106,55 +110,83 @@ class OracleUnsupported(ValueError):
 
 
 # --------------------------------------------------------------------------- formulas
-# Normalised formulas: ("lit", region, positive) | ("and", [..]) | ("or", [..]) | ("const", bool)
+# Normal forms over *timed literals*, for a trace of N + 1 states (steps 0..N, judged at N):
+# ("lit", atom, positive, back) — the atom holds (or not) at step N - back —, ("and", [..]),
+# ("or", [..]), ("const", bool). Past operators with windows unfold into one literal per step of
+# the window: historically[a, b] phi at N is phi at every step N-b..N-a (the window cut at step 0);
+# once[a, b] phi is phi at one of them. Negation is pushed to the literals.
+
+#: Alternatives (disjuncts of the normal form) the oracle expands at most: each is one NLP per N.
+MAX_ALTERNATIVES = 64
+
 
 def _unsupported(node: ir.Formula, what: str) -> OracleUnsupported:
     return OracleUnsupported(
-        f"the oracle supports region goals only (`in R` atoms combined with not/and/or): "
-        f"{what} `{ir.to_text(node)}` is not supported")
+        f"the oracle does not support {what} (in `{ir.to_text(node)}`): it supports conditions on the "
+        "state (regions, comparisons) with not/and/or/->, under historically and once with windows")
 
 
-def _nnf(node: ir.Formula, positive: bool = True):
-    """Negation normal form over region literals; raises OracleUnsupported otherwise."""
+_FUTURE = {ir.Always: "always", ir.Eventually: "eventually", ir.Until: "until"}
+
+
+def _normal(node: ir.Formula, N: Optional[int], positive: bool = True, back: int = 0):
+    """Negation normal form of ``node`` at step N of a trace of N + 1 states (``back`` steps
+    earlier); ``N=None``: no temporal operator allowed (``avoid``, judged at every step)."""
     if isinstance(node, ir.Atom):
-        if not node.text.startswith("in "):
-            raise _unsupported(node, "the comparison")
-        return ("lit", node.text[3:].strip(), positive)
+        if node.region is None and node.margin is None:
+            raise _unsupported(node, f"the condition `{node.text}`")
+        return ("lit", node, positive, back)
     if isinstance(node, ir.Const):
         return ("const", node.value == positive)
     if isinstance(node, ir.Not):
-        return _nnf(node.arg, not positive)
+        return _normal(node.arg, N, not positive, back)
     if isinstance(node, ir.Implies):
-        return _nnf(ir.Or(ir.Not(node.left), node.right), positive)
+        return _normal(ir.Or(ir.Not(node.left), node.right), N, positive, back)
     if isinstance(node, (ir.And, ir.Or)):
         is_and = isinstance(node, ir.And) == positive
-        return ("and" if is_and else "or", [_nnf(node.left, positive), _nnf(node.right, positive)])
-    raise _unsupported(node, "the temporal formula")
+        return ("and" if is_and else "or", [_normal(c, N, positive, back) for c in ir.operands(node)])
+    if isinstance(node, (ir.Historically, ir.Once)):
+        name = type(node).__name__.lower()
+        if N is None:
+            raise _unsupported(node, f"`{name}` in `avoid` (judged at every step on its own)")
+        iv = node.interval
+        last = N - back if iv.hi is None else min(iv.hi, N - back)
+        offsets = range(iv.lo, last + 1)
+        every = isinstance(node, ir.Historically) == positive  # historically, or not once
+        if not offsets:  # the window lies before step 0: historically holds, once does not
+            return ("const", isinstance(node, ir.Historically) == positive)
+        return ("and" if every else "or", [_normal(node.arg, N, positive, back + o) for o in offsets])
+    if type(node) in _FUTURE:
+        raise _unsupported(node, f"the future operator `{_FUTURE[type(node)]}`")
+    raise _unsupported(node, f"`{type(node).__name__.lower()}`")
 
 
-def _dnf(f, limit: int = 64) -> list[list[tuple[str, bool]]]:
-    """Disjunctive normal form: a list of conjunctions of (region, positive) literals."""
+def _dnf(f, limit: int = MAX_ALTERNATIVES) -> list[list[tuple]]:
+    """Disjunctive normal form: a list of conjunctions of (atom, positive, back) literals."""
     kind = f[0]
     if kind == "lit":
-        return [[(f[1], f[2])]]
+        return [[(f[1], f[2], f[3])]]
     if kind == "const":
         return [[]] if f[1] else []
     parts = [_dnf(g, limit) for g in f[1]]
     if kind == "or":
-        return [c for p in parts for c in p]
-    out: list[list[tuple[str, bool]]] = [[]]
-    for p in parts:
-        out = [a + b for a in out for b in p]
-        if len(out) > limit:
-            raise OracleUnsupported("the oracle supports region goals only: this `asap` formula has too many "
-                                    f"alternatives (more than {limit}) once expanded")
+        out = [c for p in parts for c in p]
+    else:
+        out = [[]]
+        for p in parts:
+            out = [a + b for a in out for b in p]
+            if len(out) > limit:
+                break
+    if len(out) > limit:
+        raise OracleUnsupported(f"this `asap` has more than {limit} alternatives once its `or`s and `once`s are "
+                                "expanded (one optimisation problem each): shorten the windows of `once`")
     return out
 
 
-def _literals(f) -> list[tuple[str, bool]]:
+def _literals(f) -> list[tuple]:
     kind = f[0]
     if kind == "lit":
-        return [(f[1], f[2])]
+        return [(f[1], f[2], f[3])]
     if kind in ("and", "or"):
         return [lit for g in f[1] for lit in _literals(g)]
     return []
@@ -225,12 +257,17 @@ class Oracle:
         self.task_name = t.model.name
         self.deadline = int(t.model.deadline)
         self.tolerances = tuple(int(v) for v in t.model.tolerances)
-        self.goal_dnf = _dnf(_nnf(t.model.asap))
-        self.safe_nnf = None if t.model.avoid is None else _nnf(t.model.avoid, positive=False)
         self.regions = prog.regions
-        for name, _ in [lit for c in self.goal_dnf for lit in c] + (_literals(self.safe_nnf) if self.safe_nnf else []):
-            if name not in self.regions:
-                raise OracleUnsupported(f"the oracle supports region goals only: unknown region '{name}'")
+        self._dnf_at: dict[int, list] = {}
+        widest = self.goal_dnf_at(self.deadline)  # the most alternatives: unsupported parts fail here, up front
+        self.safe_nnf = None if t.model.avoid is None else _normal(t.model.avoid, None, positive=False)
+        for atom, _, _ in [lit for c in widest for lit in c] + (_literals(self.safe_nnf) if self.safe_nnf else []):
+            if atom.region is not None and atom.region not in self.regions:
+                raise OracleUnsupported(f"unknown region '{atom.region}'")
+        # What the lower bounds test (a relaxation, hence sound): per alternative, its region
+        # literals at step N itself. Alternatives at a smaller N are these, or weaker (cut windows).
+        self.goal_now = [[(a.region, pos) for a, pos, back in conj if back == 0 and a.region is not None]
+                         for conj in widest]
         self.n, self.m = sys_.n_state, sys_.n_action
         self.step_np = numpy_step(sys_)
         self.step_ca = casadi_step(sys_)
@@ -241,9 +278,9 @@ class Oracle:
         self.low, self.high = sys_.state_low, sys_.state_high
         self.ulow, self.uhigh = sys_.action_low, sys_.action_high
         self.linear = self._is_linear()
-        literals = [lit for c in self.goal_dnf for lit in c]
+        literals = [lit for c in widest for lit in c]
         self.convex = (self.linear and self.safe_nnf is None
-                       and all(pos and self._coords_linear(r) for r, pos in literals))
+                       and all(pos and self._literal_convex(atom) for atom, pos, _ in literals))
         self.label = "exact" if self.convex else "local"
         # default: restarts for non-linear dynamics only. With linear dynamics the only
         # non-convexity is in `avoid` / the goal, and there the warm-started search already agrees
@@ -251,10 +288,23 @@ class Oracle:
         self.restarts = (0 if self.linear else RESTARTS) if restarts is None else max(0, int(restarts))
         self.interval_bound = bool(interval_bound)
         self._interval_fns: Optional[tuple] = None
-        self._coords_fn: dict[str, Any] = {}
+        self._coords_fn: dict[Any, Any] = {}  # region name, or id of a comparison margin -> compiled
         self._solvers: dict[tuple[int, int], Any] = {}
         self._warm: dict[tuple[int, int], dict] = {}   # last solution per (N, disjunct)
         self._affine = self._affine_step() if self.linear else None
+
+    def goal_dnf_at(self, N: int) -> list[list[tuple]]:
+        """The alternatives of ``asap`` judged at step N (conjunctions of (atom, positive, back))."""
+        if N not in self._dnf_at:
+            self._dnf_at[N] = _dnf(_normal(self.task.model.asap, N))
+        return self._dnf_at[N]
+
+    def _literal_convex(self, atom: ir.Atom) -> bool:
+        """Holding is a convex condition when linear: a region over linear coordinates, an affine
+        comparison."""
+        if atom.region is not None:
+            return self._coords_linear(atom.region)
+        return degree(atom.margin, self.system.symbols) <= 1
 
     # ------------------------------------------------------------------ analysis
     def _is_linear(self) -> bool:
@@ -286,12 +336,12 @@ class Oracle:
         """The smallest N not excluded by a sound test: the support-function test for linear
         dynamics, interval reachability for non-linear ones (0 when disabled). At the clock time
         ``until`` (``time.perf_counter``) the test stops where it is: still a lower bound."""
-        if not self.goal_dnf:
+        if not self.goal_now:
             return 0
         if not self.linear:
             return self.interval_lower_bound(x0, until) if self.interval_bound else 0
         A, B, c = self._affine
-        affine = {r: self._coord_affine(r) for conj in self.goal_dnf for r, pos in conj if pos}
+        affine = {r: self._coord_affine(r) for conj in self.goal_now for r, pos in conj if pos}
         free = np.asarray(x0, float)
         gens: list[np.ndarray] = []  # B, A B, A^2 B, ... (A^j B multiplies u_{N-1-j})
         Aj_B = B.copy()
@@ -302,7 +352,7 @@ class Oracle:
                 free = A @ free + c
                 gens.append(Aj_B)
                 Aj_B = A @ Aj_B
-            for conj in self.goal_dnf:
+            for conj in self.goal_now:
                 if all(self._literal_possible(r, pos, affine.get(r), free, gens) for r, pos in conj):
                     return N
         return self.deadline + 1
@@ -336,7 +386,7 @@ class Oracle:
             s = self.system
             rhs = compile_function(s.equations, s.symbols, INTERVAL)
             coords = {r: compile_function([ast.Name(c, Span()) for c in self.regions[r].coords], s.symbols, INTERVAL)
-                      for conj in self.goal_dnf for r, pos in conj if pos}
+                      for conj in self.goal_now for r, pos in conj if pos}
             self._interval_fns = (rhs, coords)
         return self._interval_fns
 
@@ -363,7 +413,7 @@ class Oracle:
     def _goal_possible(self, S: list) -> bool:
         """False only if no point of the box ``S`` satisfies any disjunct of ``asap``."""
         coords = self._interval_setup()[1]
-        for conj in self.goal_dnf:
+        for conj in self.goal_now:
             ok = True
             for region, pos in conj:
                 if not pos:
@@ -424,9 +474,16 @@ class Oracle:
                                                        self.system.symbols, casadi_namespace())
         return self._coords_fn[region]
 
-    def _literal_exprs(self, region: str, positive: bool, x) -> list:
+    def _literal_exprs(self, atom: ir.Atom, positive: bool, x) -> list:
         """Expressions that are all >= 0 exactly when the literal holds with margin."""
         ca = self.ca
+        if atom.region is None:  # a comparison: its margin (positive when it holds)
+            key = id(atom.margin)
+            if key not in self._coords_fn:
+                self._coords_fn[key] = (atom, compile_function([atom.margin], self.system.symbols, casadi_namespace()))
+            margin = self._coords_fn[key][1]([x[i] for i in range(self.n)], ())[0]
+            return [margin - MARGIN] if positive else [-margin - MARGIN]
+        region = atom.region
         R = self.regions[region]
         v = ca.vertcat(*self._coords(region)([x[i] for i in range(self.n)], ()))
         if R.kind == "ball":
@@ -450,7 +507,7 @@ class Oracle:
         if kind == "const":
             return ca.DM(1.0 if f[1] else -1.0)
         if kind == "lit":
-            parts = self._literal_exprs(f[1], f[2], x)
+            parts = self._literal_exprs(f[1], f[2], x)  # (an `avoid` literal: no step back)
             flat = [p[i] for p in parts for i in range(p.shape[0])]
             out = flat[0]
             for p in flat[1:]:
@@ -509,9 +566,10 @@ class Oracle:
                     g.append(e + sa[k])
                     lbg += [0.0] * e.shape[0]
                     ubg += [ca.inf] * e.shape[0]
-        xN = X[:, N - 1]
-        for region, pos in self.goal_dnf[j]:
-            for e in self._literal_exprs(region, pos, xN):
+        for atom, pos, back in self.goal_dnf_at(N)[j]:
+            k = N - back  # the literal's step: x0 (a parameter) at step 0, else a variable
+            xk = x0 if k == 0 else X[:, k - 1]
+            for e in self._literal_exprs(atom, pos, xk):
                 g.append(e + sg)
                 lbg += [0.0] * e.shape[0]
                 ubg += [ca.inf] * e.shape[0]
@@ -565,13 +623,14 @@ class Oracle:
             return w
         return self._pack(N, j, np.tile(x0, (N, 1)), np.zeros((N, self.m)))
 
-    def _goal_point(self, j: int, x0: np.ndarray) -> np.ndarray:
-        """x0 with the coordinates the goal constrains directly (state names) set to its centre."""
+    def _goal_point(self, N: int, j: int, x0: np.ndarray) -> np.ndarray:
+        """x0 with the coordinates the goal constrains directly at step N (state names) set to
+        the centre of its regions."""
         target = np.array(x0, float)
-        for region, pos in self.goal_dnf[j]:
-            if not pos:
+        for atom, pos, back in self.goal_dnf_at(N)[j]:
+            if not pos or back != 0 or atom.region is None:
                 continue
-            R = self.regions[region]
+            R = self.regions[atom.region]
             for i, c in enumerate(R.coords):
                 k = self.system.symbols.states.get(c)
                 if k is None:
@@ -605,7 +664,7 @@ class Oracle:
                     if w is not None:
                         yield "shift", w
             elif kind == "line":
-                target = self._goal_point(j, x0)
+                target = self._goal_point(N, j, x0)
                 s = (np.arange(1, N + 1) / N)[:, None]
                 yield "line", self._pack(N, j, x0 + s * (target - x0), np.tile(mid, (N, 1)))
             elif kind == "rollout":
@@ -656,7 +715,7 @@ class Oracle:
         actions already fulfils the task (then ``actions`` has k rows)."""
         n, m = self.n, self.m
         failures = solves = extra = 0
-        for j in range(len(self.goal_dnf)):
+        for j in range(len(self.goal_dnf_at(N))):
             best_w, best_obj = None, math.inf
             alts = itertools.islice(self._alternatives(N, j, x0, own), self.restarts)
             for name, w0 in itertools.chain([("first", self._guess(N, j, x0, own))], alts):

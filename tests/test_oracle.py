@@ -195,14 +195,84 @@ def test_disjunctive_goal_and_nan_state():
 
 
 def test_unsupported_inputs_are_clear():
-    prog = asap_dsl.loads(PLANE)
-    for task, word in (("cmp", "comparison"), ("temporal", "temporal")):
-        with pytest.raises(O.OracleUnsupported, match="region goals only") as e:
+    prog = asap_dsl.loads(PLANE + "task with_since { asap in goal since x > 0  deadline 30 }\n"
+                          "task past_avoid { asap in goal  avoid once[0, 2] in disc  deadline 30 }\n"
+                          "task wide { asap once[0, 20] in goal and once[0, 20] x > 4  deadline 30 }\n")
+    for task, words in (("with_since", "`since`"), ("past_avoid", "`once` in `avoid`"), ("wide", "more than 64 alternatives")):
+        with pytest.raises(O.OracleUnsupported, match=words):
             O.Oracle(prog, task)
-        assert word in str(e.value)
     swimmer = asap_dsl.load(SPECS / "swimmer.asap")
     with pytest.raises(O.OracleUnsupported, match="needs an ode or map system"):
         O.Oracle(swimmer, "reach")
+
+
+def test_comparisons_and_past_operators_are_solved_and_verified():
+    prog = asap_dsl.loads(PLANE)
+    start = np.array([[-5.0, 0.0], [-3.0, 2.0]])
+    cmp = O.run(prog, "cmp", states=start)  # x > 4: from x = -5 at |ux| <= 1, 10 steps (x = 5 > 4)
+    assert [r.steps for r in cmp.results] == [10, 8] and all(r.verified for r in cmp.results)
+    assert O.Oracle(prog, "cmp").label == "exact"  # a half-plane: convex
+    once = O.run(prog, "temporal", states=start)  # once[0, 3] in goal: as soon as the goal is reached
+    plain = O.run(prog, "reach", states=start)
+    assert [r.steps for r in once.results] == [r.steps for r in plain.results]
+
+
+# A discrete double integrator that must *stay* home for three steps: historically[0, 2] in home.
+DWELL = """
+system Dwell {
+  state p in [-50, 50] init [-8, 8]
+  state v in [-50, 50] init [-2, 2]
+  action u in [-1, 1]
+  dt = 1
+  map { p = p + v, v = v + u }
+}
+region home = box(p in [-0.5, 0.5], v in [-0.2, 0.2])
+task settle { asap historically[0, 2] in home  deadline 25 }
+"""
+
+
+def _lp_minimum(x0: np.ndarray, deadline: int, margin: float = 1e-6):
+    """The fewest steps N such that p, v are in home at steps N-2..N (from step 0), by a
+    feasibility linear program per N (scipy's linprog) on the unrolled dynamics."""
+    from scipy.optimize import linprog
+
+    A = np.array([[1.0, 1.0], [0.0, 1.0]])
+    B = np.array([[0.0], [1.0]])
+    lo, hi = np.array([-0.5, -0.2]) + margin, np.array([0.5, 0.2]) - margin
+    for N in range(deadline + 1):
+        rows, rhs = [], []
+        for k in range(N + 1):  # x_k = A^k x0 + sum_j A^(k-1-j) B u_j
+            free = np.linalg.matrix_power(A, k) @ x0
+            G = np.zeros((2, max(N, 1)))
+            for j in range(k):
+                G[:, j] = (np.linalg.matrix_power(A, k - 1 - j) @ B)[:, 0]
+            bounds = [(lo, hi)] if k >= N - 2 else []
+            if k >= 1:
+                bounds.append((np.full(2, -50.0), np.full(2, 50.0)))
+            for blo, bhi in bounds:
+                rows += [G, -G]
+                rhs += [bhi - free, free - blo]
+        if N == 0:
+            if all(np.all(r @ np.zeros(1) <= b + 1e-12) for r, b in zip(rows, rhs)):
+                return 0
+            continue
+        res = linprog(np.zeros(N), A_ub=np.vstack(rows)[:, :N], b_ub=np.concatenate(rhs),
+                      bounds=[(-1, 1)] * N, method="highs")
+        if res.status == 0:
+            return N
+    return None
+
+
+def test_a_dwell_in_a_region_is_the_minimum_a_linear_program_computes():
+    prog = asap_dsl.loads(DWELL)
+    oracle = O.Oracle(prog, "settle")
+    assert oracle.label == "exact"
+    states = np.random.default_rng(5).uniform([-8, -2], [8, 2], size=(12, 2))
+    rep = O.run(prog, "settle", states=states)
+    expected = [_lp_minimum(x0, 25) for x0 in states]
+    assert [r.steps for r in rep.results] == expected
+    assert all(r.verified for r in rep.results if r.steps is not None)
+    assert max(s for s in expected if s is not None) >= 5  # the dwell costs steps: a real test
 
 
 def _cli(capsys, argv):

@@ -60,6 +60,8 @@ class Atom:
     bounds: tuple[float, float] = (-np.inf, np.inf)
     # The region of an `in R` atom (None for a comparison).
     region: Optional[str] = None
+    # A comparison's margin as an expression (asap_dsl.ast), for solvers that need it symbolically.
+    margin: Optional[object] = field(default=None, compare=False, repr=False)
 
 
 @dataclass(frozen=True)
