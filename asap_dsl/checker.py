@@ -17,7 +17,7 @@ import numpy as np
 from . import ast
 from .diagnostics import Collector, Span, span_text
 from .diagnostics import closest as _closest
-from .expr import BUILTIN_CONSTANTS, FUNCTION_ARITY, Symbols, names_in, nodes_in, compile_batched, compile_scalar, evaluate_constant, interval_range
+from .expr import BUILTIN_CONSTANTS, FUNCTION_ARITY, Symbols, names_in, nodes_in, compile_batched, compile_scalar, evaluate_constant, interval_range, scalar_comparison
 from .domains import DomainChecker
 from .rewards import FLOAT32_MAX
 from .intervals import Interval
@@ -319,7 +319,8 @@ class Checker:
             raise _Unresolved
         self.used.add(e.region)
         region = self.regions[e.region]
-        return ir.Atom(f"in {e.region}", region.robustness, region.satisfied, self.region_bounds(region), e.region)
+        return ir.Atom(f"in {e.region}", region.robustness, region.satisfied, self.region_bounds(region), e.region,
+                       scalar=region.scalar_form(self.symbols()))
 
     def compare_atom(self, e: ast.Compare) -> ir.Formula:
         if e.op in ("==", "!="):
@@ -346,7 +347,13 @@ class Checker:
 
         self.check_domains([e.left, e.right], "this condition")
         bounds = interval_range(margin, symbols, self.state_box())
-        return ir.Atom(self.text(e.span), rho, satisfied, (bounds.lo, bounds.hi), margin=margin)
+        def fallback(row, _rho=rho, _sat=satisfied):
+            s = np.asarray(row, dtype=np.float64)[None]
+            with np.errstate(all="ignore"):
+                return float(_rho(s)[0]), bool(_sat(s)[0])
+
+        scalar = scalar_comparison(e.left, e.right, e.op, symbols, fallback)
+        return ir.Atom(self.text(e.span), rho, satisfied, (bounds.lo, bounds.hi), margin=margin, scalar=scalar)
 
     def formula_ref(self, e: ast.Name, causal_clause: Optional[str]) -> ir.Formula:
         kind = self.kinds.get(e.id, (None,))[0]

@@ -271,6 +271,56 @@ _MATH = SimpleNamespace(
 )
 
 
+# Python floats for one state at a time (the batch-1 monitor): math's functions, which *raise*
+# where numpy would give NaN or inf, so that such a case can be computed by numpy instead.
+SCALAR = SimpleNamespace(
+    **{k: getattr(math, k) for k in ("sin", "cos", "tan", "asin", "acos", "atan", "atan2", "sinh", "cosh", "tanh",
+                                      "exp", "log", "sqrt")},
+    abs=abs, min=min, max=max, norm=lambda *xs: math.sqrt(sum(x * x for x in xs)), pow=math.pow,
+)
+
+
+class ScalarForm:
+    """An atom for one state of Python floats: ``row -> (robustness, satisfied)``, compiled on
+    first use from ``build()`` (a function of ``row``). Where Python's math raises (a domain
+    error, an overflow, a division by zero), ``fallback(row)`` computes it with numpy instead,
+    so that the value is the batched evaluator's."""
+
+    __slots__ = ("_build", "_fn", "_fallback")
+
+    def __init__(self, build: Callable[[], Callable], fallback: Callable):
+        self._build, self._fn, self._fallback = build, None, fallback
+
+    def __call__(self, row):
+        fn = self._fn
+        if fn is None:
+            fn = self._fn = self._build()
+        try:
+            out = fn(row)
+        except (ArithmeticError, ValueError):
+            return self._fallback(row)
+        if out[0] != out[0]:  # NaN (inf - inf): numpy's min/max treat it differently from Python's
+            return self._fallback(row)
+        return out
+
+
+def scalar_comparison(left: ast.Expr, right: ast.Expr, op: str, symbols: Symbols, fallback: Callable) -> ScalarForm:
+    """The scalar form of ``left op right`` (robustness ``right - left`` for < and <=)."""
+    import operator
+
+    compare = {"<": operator.lt, "<=": operator.le, ">": operator.gt, ">=": operator.ge}[op]
+    less = op in ("<", "<=")
+
+    def build():
+        fn = compile_function([left, right], symbols, SCALAR)
+
+        def atom(row, _fn=fn, _cmp=compare, _less=less):
+            a, b = _fn(row, ())
+            return (b - a if _less else a - b), _cmp(a, b)
+        return atom
+    return ScalarForm(build, fallback)
+
+
 def nodes_in(e: ast.Expr) -> Iterable[ast.Expr]:
     """Every node of an expression (formulas included), in source order (an explicit stack:
     a chain of 10,000 terms is 10,000 deep)."""

@@ -16,7 +16,7 @@ import numpy as np
 
 from . import ast
 from .diagnostics import Span
-from .expr import Symbols, compile_batched
+from .expr import SCALAR, ScalarForm, Symbols, compile_batched, compile_function
 from .stl import ir
 
 
@@ -158,6 +158,33 @@ class RegionModel:
             return np.maximum(0.0, np.sqrt(np.sum(np.square(v - np.asarray(self.centre)), axis=-1)) - self.radius)
         gap = np.maximum(np.asarray(self.low) - v, 0.0) + np.maximum(v - np.asarray(self.high), 0.0)
         return np.sqrt(np.sum(np.square(gap), axis=-1))
+
+    def scalar_form(self, symbols):
+        """``row -> (robustness, satisfied)`` for one state of Python floats (the batch-1 monitor),
+        the same operations as :meth:`robustness` and :meth:`satisfied`."""
+        def fallback(row):
+            s = np.asarray(row, dtype=np.float64)[None]
+            with np.errstate(all="ignore"):
+                return float(self.robustness(s)[0]), bool(self.satisfied(s)[0])
+
+        def build():
+            values = compile_function([ast.Name(c, Span()) for c in self.coords], symbols, SCALAR)
+            if self.kind == "ball":
+                centre, r = tuple(self.centre), self.radius
+
+                def ball(row):
+                    d2 = 0.0
+                    for v, c in zip(values(row, ()), centre):
+                        d2 += (v - c) * (v - c)
+                    return r - math.sqrt(d2), d2 <= r * r
+                return ball
+            sides = tuple(zip(self.low, self.high))
+
+            def box(row):
+                vs = values(row, ())
+                return min(min(v - lo, hi - v) for v, (lo, hi) in zip(vs, sides)), all(lo <= v <= hi for v, (lo, hi) in zip(vs, sides))
+            return box
+        return ScalarForm(build, fallback)
 
     def describe(self) -> str:
         if self.kind == "ball":

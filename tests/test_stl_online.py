@@ -375,3 +375,49 @@ def test_tracker_step_and_restart_equals_step_then_restart(node, pool, data):
         sep.restart(done[k], cands[:, k])
         assert np.array_equal(one.step_rob, r) and np.array_equal(one.step_sat, s), (ir.to_text(node), k)
         assert np.array_equal(one.rob, sep.rob) and np.array_equal(one.sat, sep.sat), (ir.to_text(node), k)
+
+
+# ---- the batch-1 monitor --------------------------------------------------------------------
+
+@FUZZ
+@given(formulas(causal=True), traces(batch=1, max_T=16), st.data())
+def test_scalar_monitor_equals_offline_at_every_step_with_resets(node, batch, data):
+    from asap_dsl.stl.scalar import ScalarMonitor
+
+    _, T, _ = batch.shape
+    resets = np.array(data.draw(st.lists(st.booleans(), min_size=T, max_size=T))).reshape(1, T)
+    resets &= np.random.default_rng(1).random((1, T)) < 0.25
+    run_with_resets(ScalarMonitor(node), batch, resets, prefix=False, node=node)
+
+
+def test_monitor_for_a_single_trace_is_the_scalar_monitor_with_the_same_values():
+    from asap_dsl.stl.scalar import ScalarMonitor
+
+    node = ir.And(ir.Historically(ir.Interval(0, 100), X_GT_0), ir.Once(ir.Interval(2, 1000), Y_GT_0))
+    mon = online.monitor_for(node, 1)
+    assert type(mon) is ScalarMonitor
+    trace = np.random.default_rng(0).normal(size=(1, 1500, 2))
+    want = offline.robustness(node, trace)[0]
+    got = [mon.update(trace[:, t])[0] for t in range(1500)]
+    assert np.array_equal(got, want)
+    mon.update(trace[:, 0], mask=np.array([False]))  # a masked update leaves it as it was
+    assert mon.t[0] == 1499 and mon.robustness[0] == want[-1]
+    with pytest.raises(ValueError, match="non-finite"):
+        mon.update(np.array([[np.nan, 0.0]]))
+
+
+def test_scalar_forms_of_language_atoms_equal_the_vectorised_ones():
+    import asap_dsl
+
+    prog = asap_dsl.loads(
+        "system S1 {\n  state x in [-5, 5]\n  state y in [-5, 5]\n  action u in [-1, 1]\n  let r = sqrt(x^2 + y^2)\n"
+        "  dt = 0.1\n  ode { x' = u, y' = u }\n}\nregion ball1 = ball({r: 1}, 0.5)\nregion box1 = box(x in [0, 1], y in [-1, 1])\n"
+        "task t { asap (in ball1 or in box1) and sin(x) * y < 0.3 and log(x + 6) > 0.1  deadline 10 }\n")
+    atoms = [a for a in ir.operands(prog.task("t").model.asap) for a in (ir.operands(a) if isinstance(a, ir.Or) else [a])]
+    states = np.random.default_rng(0).uniform(-5, 5, size=(500, 2))
+    for atom in atoms:
+        assert atom.scalar is not None
+        rho, sat = atom.robustness(states), atom.satisfied(states)
+        for k, s in enumerate(states):
+            r, b = atom.scalar(tuple(s))
+            assert r == pytest.approx(rho[k], rel=1e-12, abs=1e-12) and b == sat[k], atom.text

@@ -745,8 +745,13 @@ class PrefixMonitor(_Base):
 
 
 def monitor_for(node: ir.Formula, batch: int, **kw):
-    """``Monitor`` for a causal formula, ``PrefixMonitor`` for top-level future operators over
-    causal parts; otherwise ``ValueError`` naming the operator that cannot be monitored online."""
+    """``Monitor`` for a causal formula (:class:`asap_dsl.stl.scalar.ScalarMonitor` for a batch
+    of one: Python floats, no numpy per step), ``PrefixMonitor`` for top-level future operators
+    over causal parts; otherwise ``ValueError`` naming the operator that cannot be monitored."""
     if ir.is_causal(node):
+        if batch == 1 and not isinstance(batch, bool):
+            from .scalar import ScalarMonitor
+
+            return ScalarMonitor(node, **kw)
         return Monitor(node, batch, **kw)
     return PrefixMonitor(node, batch, **kw)
