@@ -291,6 +291,12 @@ class ScalarForm:
     def __init__(self, build: Callable[[], Callable], fallback: Callable):
         self._build, self._fn, self._fallback = build, None, fallback
 
+    def compiled(self) -> Callable:
+        """The compiled function itself (no fallback): for callers that handle the failures."""
+        if self._fn is None:
+            self._fn = self._build()
+        return self._fn
+
     def __call__(self, row):
         fn = self._fn
         if fn is None:

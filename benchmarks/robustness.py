@@ -146,6 +146,47 @@ def main(argv=None):
           f"online {rows[b]['on_ours'] / rows[a]['on_ours']:.2f}x  (target <= 2x)")
     print(f"  rtamt's,  w = {b} over w = {a}: offline {rows[b]['off_rt'] / rows[a]['off_rt']:.1f}x, "
           f"online {rows[b]['on_rt'] / rows[a]['on_rt']:.1f}x")
+    batch_one(traces, 1000 if args.quick else 3000)
+
+
+# The formulas of the batch-1 comparison, written in the language (so that the atoms have the
+# scalar forms a spec gives them): (label, windows of historically and once, target or None).
+BATCH_ONE = [("w = 10", 10, 10, None), ("w = 100", 100, 100, 20.0), ("w = 1000", 1000, 1000, 20.0),
+             ("w = 100 and 1000", 100, 1000, 20.0)]
+
+
+def batch_one(traces, steps):
+    """One trace, one update per step (a single environment): ``monitor_for(node, 1)`` (the
+    scalar monitor) and, for reference, the batched Monitor at B = 1, against rtamt's update."""
+    import asap_dsl
+
+    print(f"\nonline, ONE trace (batch 1, one update per step, {steps} steps), per update:")
+    print(f"  {'formula':<18s} {'asap_dsl':>10s} {'(+ sat.)':>10s} {'batched B=1':>12s} {'rtamt':>10s} {'ratio':>9s}")
+    xs, ys = traces[0, :, 0].tolist(), traces[0, :, 1].tolist()
+    states = traces[0, :steps, None, :].copy()
+    for label, wh, wo, target in BATCH_ONE:
+        prog = asap_dsl.loads(f"system Plane {{\n state x in [-1e9, 1e9]\n state y in [-1e9, 1e9]\n action u in [-1, 1]\n"
+                              f" dt = 1\n map {{ x = x + u, y = y + u }}\n}}\n"
+                              f"task t {{ asap historically[0, {wh}] x < 1 and once[0, {wo}] y > 0  deadline 5000 }}\n")
+        node = prog.task("t").model.asap
+
+        def run(mon):
+            t0 = time.perf_counter()
+            out = [mon.update(states[k])[0] for k in range(steps)]
+            return (time.perf_counter() - t0) / steps, out
+
+        ours, out = min((run(online.monitor_for(node, 1, satisfaction=False)) for _ in range(3)), key=lambda r: r[0])
+        ours_sat, _ = run(online.monitor_for(node, 1))
+        batched, _ = run(online.Monitor(node, 1, satisfaction=False))
+        spec = rtamt_spec("online", f"(historically[0,{wh}](x < 1.0)) and (once[0,{wo}](y > 0.0))")
+        t0 = time.perf_counter()
+        rt = [spec.update(i, [("x", xs[i]), ("y", ys[i])]) for i in range(steps)]
+        rt_t = (time.perf_counter() - t0) / steps
+        assert np.array_equal(np.array(rt), np.array(out)), f"{label}: rtamt and asap_dsl disagree"
+        ratio = rt_t / ours
+        verdict = "" if target is None else f"  ({'PASS' if ratio >= target else 'FAIL'}, target >= {target:g}x)"
+        print(f"  {label:<18s} {ours * 1e6:8.2f}us {ours_sat * 1e6:8.2f}us {batched * 1e6:10.2f}us "
+              f"{rt_t * 1e6:8.2f}us {ratio:8.1f}x{verdict}")
 
 
 def rtamt_version():

@@ -23,6 +23,7 @@ from typing import Callable, Optional
 
 import numpy as np
 
+from ..expr import ScalarForm
 from . import ir
 
 _INF = math.inf
@@ -45,6 +46,7 @@ class ScalarMonitor:
         self._memo: dict[int, tuple[object, int]] = {}
         self._keep: list = []       # rewritten nodes kept alive (their ids stay unique)
         self._root = self._compile(node)
+        self._run = _chain(self._steps)
         self._t = -1
         self._rob = np.full(1, np.nan)
         self._sat = np.zeros(1, dtype=bool)
@@ -77,8 +79,7 @@ class ScalarMonitor:
             return self._rob
         self._row[0] = self._read(states)
         t = self._t = self._t + 1
-        for step in self._steps:
-            step(t)
+        self._run(t)
         rob = np.empty(1)
         rob[0] = self._R[self._root]
         self._rob = rob
@@ -98,6 +99,12 @@ class ScalarMonitor:
 
     # ---- input -------------------------------------------------------------------------------
     def _read(self, states) -> tuple:
+        if type(states) is np.ndarray and states.dtype == np.float64 and states.shape[0] == 1 and states.ndim == 2 \
+                and (self.n_state is None or states.shape[1] == self.n_state):
+            row = states.tolist()[0]  # the common case, checked cheaply
+            total = sum(row)
+            if total - total == 0.0:  # finite (a NaN or an inf makes this NaN)
+                return row
         s = np.asarray(states, dtype=np.float64)
         if s.shape[0] != 1 or s.ndim != 2:
             raise ValueError(f"states must have shape [1, n_state]; got {s.shape}")
@@ -174,6 +181,15 @@ class ScalarMonitor:
         raise TypeError(f"not a causal formula node: {node!r}")
 
 
+def _chain(steps: list) -> Callable[[int], None]:
+    """One function calling every step in order (no loop per update)."""
+    names = [f"_s{k}" for k in range(len(steps))]
+    source = "def run(t):\n" + "".join(f"    {n}(t)\n" for n in names) + "    return None\n"
+    namespace = dict(zip(names, steps))
+    exec(compile(source, "<scalar monitor>", "exec"), namespace)  # noqa: S102 - our own generated code
+    return namespace["run"]
+
+
 def _flag(mask, what: str) -> bool:
     m = np.asarray(mask)
     if m.shape != (1,) or m.dtype != np.bool_:
@@ -192,11 +208,34 @@ def _atom_step(atom: ir.Atom, i: int, R: list, S: list, row: list, sat: bool):
         r, b = form(row[0])
         R[i] = r
         S[i] = 1.0 if b else -1.0
+
+    if not sat and isinstance(form, ScalarForm):  # robustness only: the compiled form called directly
+        fast = form.compiled()
+
+        def step_rho(t, fast=fast, form=form):
+            try:
+                r = fast(row[0])[0]
+            except (ArithmeticError, ValueError):
+                r = form(row[0])[0]
+            if r != r:  # NaN: as numpy computes it
+                r = form(row[0])[0]
+            R[i] = r
+        return step_rho
     return step
 
 
 def _binary_step(kind: type, a: int, b: int, i: int, R: list, S: list, sat: bool):
     # min/max as numpy computes them on these values (no NaN reaches here: atoms fall back).
+    if not sat and kind is not ir.Implies:  # robustness only: one lane, no test per step
+        if kind is ir.And:
+            def lone(t):
+                x, y = R[a], R[b]
+                R[i] = x if x <= y else y
+        else:
+            def lone(t):
+                x, y = R[a], R[b]
+                R[i] = x if x >= y else y
+        return lone
     if kind is ir.And:
         def step(t):
             x, y = R[a], R[b]
@@ -235,6 +274,38 @@ def _window_step(every: bool, interval: ir.Interval, a: int, i: int, R: list, S:
             idx.clear()
             val.clear()
         running[0] = running[1] = empty
+
+    if not sat and lo == 0 and hi is not None:  # the common case, one lane: no loop over lanes
+        _, _, idx, val = lanes[0]
+        push, popv, popi, appi = val.append, val.pop, idx.pop, idx.append
+        left_v, left_i = val.popleft, idx.popleft
+
+        def step_min(t):
+            v = R[a]
+            while val and val[-1] >= v:
+                popv()
+                popi()
+            push(v)
+            appi(t)
+            first = t - hi
+            while idx[0] < first:
+                left_i()
+                left_v()
+            R[i] = val[0]
+
+        def step_max(t):
+            v = R[a]
+            while val and val[-1] <= v:
+                popv()
+                popi()
+            push(v)
+            appi(t)
+            first = t - hi
+            while idx[0] < first:
+                left_i()
+                left_v()
+            R[i] = val[0]
+        return (step_min if every else step_max), reset
 
     def step(t):
         for lane, (X, delay, idx, val) in enumerate(lanes):
