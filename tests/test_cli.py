@@ -213,3 +213,57 @@ def test_control_characters_and_huge_lines_never_reach_the_terminal_raw(capsys, 
         assert len(line) < 400
     code, out, _ = run(capsys, "show", str(ROOT / "examples" / "double_integrator.asap"))
     assert code == 0 and "\x1b" not in out
+
+
+# ---------------------------------------------------------------- one voice
+def test_an_unknown_task_is_exit_2_with_one_wording_in_every_command(capsys, tmp_path):
+    spec = str(ROOT / "specs" / "dc_motor.asap")
+    for argv in (["show", spec, "--task", "reac"], ["oracle", spec, "--task", "reac"],
+                 ["train", spec, "--task", "reac", "--out", str(tmp_path / "r")]):
+        with pytest.raises(SystemExit) as stop:
+            code = cli.main(argv)
+            raise SystemExit(code)
+        err = capsys.readouterr().err
+        assert stop.value.code == 2, argv
+        assert f"asapc: error: no task named 'reac' in {spec}; did you mean 'reach'?" in err, (argv, err)
+
+
+def test_version_flag_short_and_long(capsys):
+    for flag in ("-V", "--version"):
+        with pytest.raises(SystemExit) as stop:
+            cli.main([flag])
+        assert stop.value.code == 0 and capsys.readouterr().out.startswith("asapc ")
+
+
+def test_show_json_has_one_shape_with_the_diagnostics_inside(capsys, tmp_path):
+    import json
+
+    code, out, _ = run(capsys, "show", "--format", "json", str(ROOT / "examples" / "double_integrator.asap"))
+    d = json.loads(out)
+    assert code == 0 and {"file", "errors", "warnings", "diagnostics", "system", "tasks"} <= set(d)
+    assert all(isinstance(v, str) and not v.isdigit() for v in d["system"]["lets"].values())  # expressions
+    for t in d["tasks"].values():
+        assert isinstance(t["horizon_steps"], int) and isinstance(t["deadline_steps"], int)
+    warned = tmp_path / "warned.asap"
+    warned.write_text((ROOT / "examples" / "double_integrator.asap").read_text() + "\nregion spare = ball([0, 0], 1)\n")
+    code, out, _ = run(capsys, "show", "--format", "json", str(warned))
+    d = json.loads(out)
+    assert code == 0 and d["warnings"] == 1 and d["diagnostics"][0]["code"] == "W202"
+    code, out, _ = run(capsys, "show", "--format", "json", str(ROOT / "examples" / "broken.asap"))
+    d = json.loads(out)
+    assert code == 1 and d["errors"] == 7 and "system" not in d and d["diagnostics"][0]["severity"] == "error"
+
+
+def test_lint_deep_says_what_it_did_not_check(capsys, tmp_path):
+    import json
+
+    spec = tmp_path / "two.asap"
+    spec.write_text("system Rail {\n  state x in [-5, 5]\n  action u in [-1, 1]\n  dt = 0.1\n  ode { x' = u }\n}\n"
+                    "region g = ball([1], 0.5)\ntask plain { asap in g  deadline 100 }\n"
+                    "task dwell { asap in g since x > 0.9  deadline 100 }\n")
+    code, out, _ = run(capsys, "lint", "--deep", "--samples", "2", str(spec))
+    assert code == 0 and "--deep did not check task 'dwell'" in out and "`since`" in out
+    code, out, _ = run(capsys, "lint", "--deep", "--samples", "2", "--format", "json", str(spec))
+    assert [s["task"] for s in json.loads(out)["deep_skipped"]] == ["dwell"]
+    code, out, _ = run(capsys, "lint", "--deep", "--samples", "2", str(ROOT / "specs" / "swimmer.asap"))
+    assert "black-box simulator" in out

@@ -436,3 +436,26 @@ def test_tighten_takes_the_min_and_every_sequence_replays():
             assert ok and len(r.actions) == r.steps, (rep.task, r.index)
             assert r.verified
     assert free.results[0].source == "reach_avoid" and free.results[2].source is None
+
+
+def test_progress_is_reported_as_states_finish_and_shown_on_a_terminal():
+    from asap_dsl.backends.oracle_cli import _Progress
+
+    prog = asap_dsl.load(SPECS / "dc_motor.asap")
+    for workers in (1, 2):
+        seen = []
+        O.run(prog, "reach", episodes=20, workers=workers, progress=seen.append)
+        assert sum(seen) == 20 and len(seen) > 1
+
+    class Terminal(io.StringIO):
+        def isatty(self):
+            return True
+
+    screen = Terminal()
+    bar = _Progress(screen, "reach", 20)
+    bar(5)
+    bar(5)
+    assert "10/20 states" in screen.getvalue() and "left" in screen.getvalue()
+    quiet = io.StringIO()
+    _Progress(quiet, "reach", 20)(5)
+    assert quiet.getvalue() == ""  # nothing in a pipe or a log
