@@ -13,7 +13,7 @@ import pytest
 
 import asap_dsl
 from asap_dsl.stl import ir
-from conftest import language_blocks
+from conftest import ROOT, language_blocks
 
 BLOCKS = language_blocks()
 WHOLE_FILE = next(b for b in BLOCKS if b.lstrip().startswith("# specs/dc_motor.asap"))
@@ -192,3 +192,15 @@ def test_vendored_language_md_matches_the_contract():
         pytest.skip("no ../shared/design/LANGUAGE.md beside this checkout")
     assert VENDORED_LANGUAGE_MD.read_text(encoding="utf-8") == SHARED_LANGUAGE_MD.read_text(encoding="utf-8"), (
         "the contract changed: copy ../shared/design/LANGUAGE.md to tests/data/LANGUAGE.md and check the examples")
+
+
+def test_the_docs_stand_alone():
+    """The project's docs are read without the design notes: none of them defers to those."""
+    pages = [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md"))]
+    for page in pages:
+        text = page.read_text(encoding="utf-8")
+        for name in ("LANGUAGE.md", "BENCHMARKS.md", "ARCHITECTURE.md", "design notes", "../shared"):
+            assert name not in text, f"{page.name} refers to {name}"
+    for doc in ("language.md", "benchmarks.md", "cli.md", "limits.md", "oracle.md", "training.md", "compare.md"):
+        assert f"docs/{doc}" in (ROOT / "README.md").read_text(encoding="utf-8") or doc in "".join(
+            p.read_text(encoding="utf-8") for p in pages), f"nothing links {doc}"

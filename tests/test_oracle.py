@@ -459,3 +459,24 @@ def test_progress_is_reported_as_states_finish_and_shown_on_a_terminal():
     quiet = io.StringIO()
     _Progress(quiet, "reach", 20)(5)
     assert quiet.getvalue() == ""  # nothing in a pipe or a log
+
+
+def test_an_unsupported_task_does_not_stop_the_others(tmp_path, capsys):
+    f = tmp_path / "mixed.asap"
+    f.write_text(PLANE + "task with_since { asap in goal since x > 0  deadline 30 }\n")
+    rc, out, err = _cli(capsys, [str(f), "--episodes", "3", "--format", "json", "--workers", "1"])
+    d = json.loads(out)
+    assert rc == 0 and "with_since" in err and "`since`" in err
+    assert [s["task"] for s in d["skipped"]] == ["with_since"]
+    assert {t["task"] for t in d["tasks"]} == {"reach", "reach_avoid", "far", "cmp", "temporal", "either"}
+
+
+def test_the_default_is_one_worker_per_core():
+    import argparse
+
+    from asap_dsl.cli import available_cores
+
+    p = argparse.ArgumentParser()
+    add_oracle_arguments(p)
+    assert p.parse_args(["x.asap"]).workers is None  # resolved to available_cores() when run
+    assert available_cores() >= 1
