@@ -175,6 +175,8 @@ def _steps(x: float):
 
 
 def cmd_show(args: argparse.Namespace) -> int:
+    if args.task == "":
+        raise _UsageError(EMPTY_TASK)
     try:
         prog = _load(args.file)
     except SpecError as err:
@@ -241,6 +243,9 @@ def cmd_show(args: argparse.Namespace) -> int:
 class _UsageError(Exception):
     """A flag or argument that is misused, or names something the spec does not have (exit 2,
     ``asapc: error: ...``)."""
+
+
+EMPTY_TASK = "--task needs a task name (leave it out for every task, or the only one)"
 
 
 def usage_error(message: str) -> Exception:

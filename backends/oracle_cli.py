@@ -116,14 +116,14 @@ def oracle_command(args: argparse.Namespace, out: Optional[TextIO] = None, err: 
     import asap_dsl
     from asap_dsl.backends.oracle import OracleUnsupported, run, tighten
     from asap_dsl.backends.oracle_cache import store
-    from asap_dsl.cli import available_cores, check_workers, usage_error
+    from asap_dsl.cli import EMPTY_TASK, available_cores, check_workers, usage_error
 
     out = out or sys.stdout
     err = err or sys.stderr
     workers = args.workers if args.workers is not None else available_cores()
     check_workers(workers, getattr(args, "force_workers", False))
     if args.task == "":
-        raise usage_error("--task needs a task name (leave it out to solve every task)")
+        raise usage_error(EMPTY_TASK)
     prog = asap_dsl.load(args.file)  # a SpecError is reported by asapc (exit 1)
     if args.task is not None:
         try:

@@ -168,7 +168,11 @@ def train_command(args: argparse.Namespace, out: Optional[TextIO] = None, err: O
     from .config import ConfigError
     from .training import train
 
+    from asap_dsl.cli import EMPTY_TASK
+
     out, err = out or sys.stdout, err or sys.stderr
+    if args.task == "":
+        return _fail(err, EMPTY_TASK, 2)
     try:
         prog = asap_dsl.load(args.file)
     except asap_dsl.SpecError as e:

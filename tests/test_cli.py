@@ -190,14 +190,6 @@ def test_oracle_flags_that_would_exhaust_the_machine_are_refused(capsys, argv, w
     assert code == 2 and words in err and "Traceback" not in err
 
 
-def test_show_with_an_empty_task_name_is_an_error(capsys):
-    try:
-        code = cli.main(["show", str(ROOT / "specs" / "dc_motor.asap"), "--task", ""])
-    except SystemExit as e:
-        code = e.code
-    assert code == 2 and "no task named ''" in capsys.readouterr().err
-
-
 def test_control_characters_and_huge_lines_never_reach_the_terminal_raw(capsys, tmp_path):
     spec = tmp_path / "esc.asap"
     src = (ROOT / "examples" / "double_integrator.asap").read_text()
@@ -267,3 +259,12 @@ def test_lint_deep_says_what_it_did_not_check(capsys, tmp_path):
     assert [s["task"] for s in json.loads(out)["deep_skipped"]] == ["dwell"]
     code, out, _ = run(capsys, "lint", "--deep", "--samples", "2", str(ROOT / "specs" / "swimmer.asap"))
     assert "black-box simulator" in out
+
+
+def test_an_empty_task_is_exit_2_with_one_wording_in_every_command(capsys, tmp_path):
+    spec = str(ROOT / "specs" / "dc_motor.asap")
+    for argv in (["show", spec, "--task", ""], ["oracle", spec, "--task", ""],
+                 ["train", spec, "--task", "", "--out", str(tmp_path / "r")]):
+        with pytest.raises(SystemExit) as stop:
+            raise SystemExit(cli.main(argv))
+        assert stop.value.code == 2 and "asapc: error: --task needs a task name" in capsys.readouterr().err, argv
