@@ -204,3 +204,15 @@ def test_the_docs_stand_alone():
     for doc in ("language.md", "benchmarks.md", "cli.md", "limits.md", "oracle.md", "training.md", "compare.md"):
         assert f"docs/{doc}" in (ROOT / "README.md").read_text(encoding="utf-8") or doc in "".join(
             p.read_text(encoding="utf-8") for p in pages), f"nothing links {doc}"
+
+
+def test_the_readme_tour_lints_clean():
+    import re
+
+    import asap_dsl
+
+    readme = (ROOT / "README.md").read_text(encoding="utf-8")
+    (tour,) = re.findall(r"```\n(system Cart.*?)```", readme, re.S)
+    prog = asap_dsl.loads(tour, "tour.asap")
+    assert not prog.warnings and set(prog.tasks) == {"park", "recover"}
+    assert prog.task("recover").model.init_box is not None
