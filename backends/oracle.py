@@ -65,7 +65,7 @@ from __future__ import annotations
 import itertools
 import math
 import time
-from dataclasses import dataclass, field, replace
+from dataclasses import replace
 from typing import Any, Callable, Optional, Sequence
 
 import numpy as np
@@ -76,8 +76,10 @@ from asap_dsl.dynamics import casadi_step, numpy_step
 from asap_dsl.expr import INTERVAL, casadi_namespace, compile_function, degree
 from asap_dsl.intervals import Interval
 from asap_dsl.sampling import EVAL_SEED, task_states
-from asap_dsl.stats import steps_summary, wilson_interval
 from asap_dsl.stl import ir, offline
+
+from .oracle_goals import OracleUnsupported, _dnf, _flatten_and, _literals, _normal
+from .oracle_results import OracleReport, StateResult
 
 #: Margin by which the goal is shrunk and ``avoid`` / the state space are kept clear in the NLP.
 MARGIN = 1e-6
@@ -103,134 +105,6 @@ IPOPT_OPTIONS = {
     "ipopt.max_iter": 400,
     "ipopt.mu_strategy": "adaptive",
 }
-
-
-class OracleUnsupported(ValueError):
-    """The oracle cannot treat this system or task (black box, non-region formula, ...)."""
-
-
-# --------------------------------------------------------------------------- formulas
-# Normal forms over *timed literals*, for a trace of N + 1 states (steps 0..N, judged at N):
-# ("lit", atom, positive, back) — the atom holds (or not) at step N - back —, ("and", [..]),
-# ("or", [..]), ("const", bool). Past operators with windows unfold into one literal per step of
-# the window: historically[a, b] phi at N is phi at every step N-b..N-a (the window cut at step 0);
-# once[a, b] phi is phi at one of them. Negation is pushed to the literals.
-
-#: Alternatives (disjuncts of the normal form) the oracle expands at most: each is one NLP per N.
-MAX_ALTERNATIVES = 64
-
-
-def _unsupported(node: ir.Formula, what: str) -> OracleUnsupported:
-    return OracleUnsupported(
-        f"the oracle does not support {what} (in `{ir.to_text(node)}`): it supports conditions on the "
-        "state (regions, comparisons) with not/and/or/->, under historically and once with windows")
-
-
-_FUTURE = {ir.Always: "always", ir.Eventually: "eventually", ir.Until: "until"}
-
-
-def _normal(node: ir.Formula, N: Optional[int], positive: bool = True, back: int = 0):
-    """Negation normal form of ``node`` at step N of a trace of N + 1 states (``back`` steps
-    earlier); ``N=None``: no temporal operator allowed (``avoid``, judged at every step)."""
-    if isinstance(node, ir.Atom):
-        if node.region is None and node.margin is None:
-            raise _unsupported(node, f"the condition `{node.text}`")
-        return ("lit", node, positive, back)
-    if isinstance(node, ir.Const):
-        return ("const", node.value == positive)
-    if isinstance(node, ir.Not):
-        return _normal(node.arg, N, not positive, back)
-    if isinstance(node, ir.Implies):
-        return _normal(ir.Or(ir.Not(node.left), node.right), N, positive, back)
-    if isinstance(node, (ir.And, ir.Or)):
-        is_and = isinstance(node, ir.And) == positive
-        return ("and" if is_and else "or", [_normal(c, N, positive, back) for c in ir.operands(node)])
-    if isinstance(node, (ir.Historically, ir.Once)):
-        name = type(node).__name__.lower()
-        if N is None:
-            raise _unsupported(node, f"`{name}` in `avoid` (judged at every step on its own)")
-        iv = node.interval
-        last = N - back if iv.hi is None else min(iv.hi, N - back)
-        offsets = range(iv.lo, last + 1)
-        every = isinstance(node, ir.Historically) == positive  # historically, or not once
-        if not offsets:  # the window lies before step 0: historically holds, once does not
-            return ("const", isinstance(node, ir.Historically) == positive)
-        return ("and" if every else "or", [_normal(node.arg, N, positive, back + o) for o in offsets])
-    if type(node) in _FUTURE:
-        raise _unsupported(node, f"the future operator `{_FUTURE[type(node)]}`")
-    raise _unsupported(node, f"`{type(node).__name__.lower()}`")
-
-
-def _dnf(f, limit: int = MAX_ALTERNATIVES) -> list[list[tuple]]:
-    """Disjunctive normal form: a list of conjunctions of (atom, positive, back) literals."""
-    kind = f[0]
-    if kind == "lit":
-        return [[(f[1], f[2], f[3])]]
-    if kind == "const":
-        return [[]] if f[1] else []
-    parts = [_dnf(g, limit) for g in f[1]]
-    if kind == "or":
-        out = [c for p in parts for c in p]
-    else:
-        out = [[]]
-        for p in parts:
-            out = [a + b for a in out for b in p]
-            if len(out) > limit:
-                break
-    if len(out) > limit:
-        raise OracleUnsupported(f"this `asap` has more than {limit} alternatives once its `or`s and `once`s are "
-                                "expanded (one optimisation problem each): shorten the windows of `once`")
-    return out
-
-
-def _literals(f) -> list[tuple]:
-    kind = f[0]
-    if kind == "lit":
-        return [(f[1], f[2], f[3])]
-    if kind in ("and", "or"):
-        return [lit for g in f[1] for lit in _literals(g)]
-    return []
-
-
-@dataclass
-class StateResult:
-    """The oracle's answer for one initial state."""
-
-    index: int
-    x0: np.ndarray
-    steps: Optional[int]          # the minimum N, None if none up to the deadline
-    status: str                   # solved | infeasible | solver_failed | timeout | nan
-    verified: bool
-    failures: int = 0             # IPOPT solves that failed (not a clean return status)
-    solves: int = 0               # NLPs solved for this state (restarts included)
-    lower_bound: int = 0          # where the N-search started
-    actions: Optional[np.ndarray] = None   # [N, m]
-    trajectory: Optional[np.ndarray] = None  # [N+1, n], the numpy replay
-    seconds: float = 0.0
-    restarts: int = 0             # of the solves, those from extra initial guesses
-    source: Optional[str] = None  # set by tighten(): the task whose action sequence this is
-    horizon: Optional[int] = None  # timeout: the last N searched (none feasible up to it)
-
-    def to_dict(self, with_actions: bool = False) -> dict:
-        d = {"index": self.index, "x0": [float(v) for v in self.x0], "steps": self.steps,
-             "status": self.status, "verified": self.verified, "failures": self.failures,
-             "solves": self.solves, "restarts": self.restarts, "lower_bound": self.lower_bound,
-             "seconds": round(self.seconds, 6)}
-        if self.source is not None:
-            d["source"] = self.source
-        if self.horizon is not None:
-            d["horizon"] = self.horizon
-        if with_actions:
-            d["actions"] = None if self.actions is None else self.actions.tolist()
-        return d
-
-    @classmethod
-    def from_dict(cls, d: dict) -> "StateResult":
-        acts = d.get("actions")
-        return cls(d["index"], np.asarray(d["x0"], float), d["steps"], d["status"], d["verified"],
-                   d.get("failures", 0), d.get("solves", 0), d.get("lower_bound", 0),
-                   None if acts is None else np.asarray(acts, float), None, d.get("seconds", 0.0),
-                   d.get("restarts", 0), d.get("source"), d.get("horizon"))
 
 
 class Oracle:
@@ -811,12 +685,6 @@ class Oracle:
         return out  # type: ignore[return-value]
 
 
-def _flatten_and(f) -> list:
-    if f[0] == "and":
-        return [h for g in f[1] for h in _flatten_and(g)]
-    return [f]
-
-
 def nearest_neighbour_order(states: np.ndarray, system) -> list[int]:
     """A greedy nearest-neighbour tour of the states (scaled by the init box), for warm starts."""
     n = len(states)
@@ -836,66 +704,6 @@ def nearest_neighbour_order(states: np.ndarray, system) -> list[int]:
         order.append(cur)
         left[cur] = False
     return order
-
-
-# --------------------------------------------------------------------------- statistics
-@dataclass
-class OracleReport:
-    """Results over a set of initial states: minimum steps, statuses and the success ceiling."""
-
-    file: str
-    task: str
-    system: str
-    label: str
-    deadline: int
-    tolerances: tuple[int, ...]
-    seed: Optional[int]
-    results: list[StateResult]
-    seconds: float = 0.0
-    workers: int = 1
-    extra: dict = field(default_factory=dict)
-
-    @property
-    def steps(self) -> np.ndarray:
-        """Minimum steps per state (``inf`` where none up to the deadline or not solved)."""
-        return np.array([np.inf if r.steps is None else r.steps for r in self.results], float)
-
-    def counts(self) -> dict[str, int]:
-        out = {"solved": 0, "infeasible": 0, "solver_failed": 0, "timeout": 0, "nan": 0}
-        for r in self.results:
-            out[r.status] = out.get(r.status, 0) + 1
-        out["unverified"] = sum(1 for r in self.results if r.status == "solved" and not r.verified)
-        out["states_with_solver_failures"] = sum(1 for r in self.results if r.failures)
-        out["solver_failures"] = sum(r.failures for r in self.results)
-        return out
-
-    def ceiling(self, tolerance: int) -> dict:
-        """Share of states with a minimum time <= tolerance, with its 95% Wilson interval."""
-        n = len(self.results)
-        k = int(np.sum(self.steps <= tolerance))
-        lo, hi = wilson_interval(k, n)
-        return {"tolerance": int(tolerance), "count": k, "states": n,
-                "rate": k / n if n else float("nan"), "ci95": [lo, hi]}
-
-    def distribution(self) -> dict:
-        out = steps_summary(self.steps)
-        if out["reached"]:
-            s = self.steps[np.isfinite(self.steps)]
-            out["histogram"] = {int(v): int(c) for v, c in zip(*np.unique(s.astype(int), return_counts=True))}
-        return out
-
-    def to_dict(self, with_states: bool = True, with_actions: bool = False) -> dict:
-        d = {"file": self.file, "task": self.task, "system": self.system,
-             "label": self.label, "bound": f"oracle ({self.label})", "deadline": self.deadline,
-             "episodes": len(self.results), "seed": self.seed, "workers": self.workers,
-             "seconds": round(self.seconds, 3),
-             "unreachable_within_deadline": int(np.sum(~np.isfinite(self.steps))),
-             "status": self.counts(), "distribution": self.distribution(),
-             "ceiling": [self.ceiling(t) for t in self.tolerances]}
-        if with_states:
-            d["states"] = [r.to_dict(with_actions) for r in self.results]
-        d.update(self.extra)
-        return d
 
 
 # --------------------------------------------------------------------------- consistency
@@ -952,6 +760,7 @@ def tighten(prog, reports: Sequence["OracleReport"]) -> dict[str, int]:
         rep.extra["tightened"] = {"from": sources, "improved_states": len(improved)}
         summary[rep.task] = len(improved)
     return summary
+
 
 # --------------------------------------------------------------------------- drivers
 _WORKER_ORACLES: dict = {}  # in a worker process: one Oracle (and its built solvers) per setting

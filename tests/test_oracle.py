@@ -15,7 +15,7 @@ import pytest
 
 import asap_dsl
 from asap_dsl.backends import oracle as O
-from asap_dsl.backends.oracle_cli import add_oracle_arguments, oracle_command
+from asap_dsl.backends.oracle_cli import add_oracle_arguments
 from asap_dsl.dynamics import numpy_step, zero_order_hold
 
 SPECS = Path(__file__).resolve().parents[1] / "specs"

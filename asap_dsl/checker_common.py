@@ -1,0 +1,77 @@
+"""What the parts of the checker share: the tables of settings, the kinds of names, the
+exception that leaves a broken part out, and small helpers (see :mod:`asap_dsl.checker`)."""
+
+from __future__ import annotations
+
+from typing import Callable, Iterable
+
+ALGORITHMS = ("sac", "td3", "ddpg", "ppo", "a2c")
+REWARDS = {"asap": (), "rho": ("window",), "distance": ("lambda_t", "lambda_o", "base")}
+INTEGRATORS = {"rk4": ("substeps",), "euler": ("substeps",), "exact": ()}
+TRAIN_SETTINGS = {
+    "algo": "str", "steps": "int", "seed": "int", "preset": "str", "n_envs": "int",
+    "learning_rate": "float", "batch_size": "int", "buffer_size": "int", "gamma": "float",
+    "tau": "float", "learning_starts": "int", "train_freq": "int", "gradient_steps": "int",
+    "n_steps": "int", "ent_coef": "float", "gae_lambda": "float", "n_epochs": "int",
+    "vf_coef": "float", "max_grad_norm": "float", "eval_episodes": "int",
+}
+OBSERVE_ITEMS = ("state", "time")
+_MAX_STEPS = 1e9  # a time of more steps than this is a typo, not an episode
+_FUTURE_TO_PAST = {"always": "historically", "eventually": "once", "until": "since"}
+
+# Kinds of names.
+CONST, STATE, ACTION, LET, REGION, FORMULA, TASK, SYSTEM = (
+    "constant", "state", "action", "let", "region", "formula", "task", "system")
+
+
+class _Unresolved(Exception):
+    """A sub-expression had errors (already reported); the enclosing item is left out."""
+
+
+def dependency_order(names: list[str], deps: Callable[[str], Iterable[str]]) -> tuple[list[str], list[str]]:
+    """``names`` ordered so that each comes after those it depends on, and the names at which a
+    cycle was found. A name on a cycle, or depending on one, is left out of the order. A
+    depth-first search with an explicit stack: a chain of definitions may be as long as the file."""
+    VISITING, DONE, FAILED = 1, 2, 3
+    state: dict[str, int] = {}
+    order: list[str] = []
+    cyclic: list[str] = []
+    for root in names:
+        if root in state:
+            continue
+        state[root] = VISITING
+        stack = [(root, iter(deps(root)))]
+        failed: set[str] = set()
+        while stack:
+            name, pending = stack[-1]
+            for d in pending:
+                seen = state.get(d)
+                if seen is None:
+                    state[d] = VISITING
+                    stack.append((d, iter(deps(d))))
+                    break
+                if seen == VISITING:  # back to a name being defined: a cycle through it
+                    if d not in cyclic:
+                        cyclic.append(d)
+                    failed.add(name)
+                elif seen == FAILED:
+                    failed.add(name)
+            else:
+                stack.pop()
+                if name in failed:
+                    state[name] = FAILED
+                    if stack:
+                        failed.add(stack[-1][0])
+                else:
+                    state[name] = DONE
+                    order.append(name)
+    return order, cyclic
+
+
+def _a(word: str) -> str:
+    """``word`` with its article: a state, an action."""
+    return ("an " if word[:1] in "aeiou" else "a ") + word
+
+
+def _fmt(x: float) -> str:
+    return f"{x:.6g}"

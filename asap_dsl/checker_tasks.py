@@ -1,0 +1,256 @@
+"""The checks of formula declarations and of tasks (clauses, initial boxes, rewards, observation,
+training settings): a part of :class:`asap_dsl.checker.Checker`, whose state it shares."""
+
+from __future__ import annotations
+
+import math
+from typing import Callable, Optional
+
+from . import ast
+from .checker_common import (ALGORITHMS, OBSERVE_ITEMS, REWARDS, TRAIN_SETTINGS, _a, _fmt,
+                             _Unresolved, dependency_order)
+from .diagnostics import Span
+from .diagnostics import closest as _closest
+from .expr import nodes_in
+from .limits import LIMITS
+from .model import FormulaModel, RewardModel, TaskModel
+from .stl import ir
+
+
+class TaskChecks:
+    """Formula declarations and tasks (mixed into :class:`asap_dsl.checker.Checker`)."""
+
+    def check_formulas(self) -> None:
+        # In dependency order, so that a formula's references are built before it and building
+        # one never recurses through a chain of formulas (which may be as long as the file).
+        decls = {f.name: f for f in self.m.formulas if self.kinds.get(f.name, (None, None))[1] == f.name_span}
+        order, cyclic = dependency_order(
+            list(decls), lambda n: (m.id for m in nodes_in(decls[n].body) if isinstance(m, ast.Name) and m.id in decls))
+        for name in cyclic:
+            self.d.add("E120", f"formula '{name}' is defined in terms of itself", decls[name].name_span)
+        ordered = set(order)
+        for name in decls:
+            if name not in ordered:  # on a cycle, or using one (reported there)
+                self._formula_ir[name] = None
+        for name in order:
+            f = decls[name]
+            node = self.formula_ir(f.name)
+            if node is not None:
+                self.formulas[f.name] = FormulaModel(f.name, node, f.span)
+
+    def check_task(self, t: ast.TaskDecl) -> Optional[TaskModel]:
+        clauses: dict[str, ast.Clause] = {}
+        for c in t.clauses:
+            if c.keyword in clauses:
+                self.d.add("E119", f"task '{t.name}' gives `{c.keyword}` twice (first at line {clauses[c.keyword].span.line})", c.span)
+                continue
+            clauses[c.keyword] = c
+        errors = 0
+        for required in ("asap", "deadline"):
+            if required not in clauses:
+                self.d.add("E114", f"task '{t.name}' has no `{required}` clause", t.name_span,
+                           hint="`asap FORMULA` says what to fulfil as soon as possible" if required == "asap"
+                           else "`deadline N` gives the longest episode in steps (or seconds, `3s`)")
+                errors += 1
+
+        def attempt(fn: Callable, *args, default=None):
+            nonlocal errors
+            try:
+                return fn(*args)
+            except _Unresolved:
+                errors += 1
+                return default
+
+        asap = attempt(self.clause_condition, clauses["asap"], "asap") if "asap" in clauses else None
+        avoid = attempt(self.clause_condition, clauses["avoid"], "avoid") if "avoid" in clauses else None
+        deadline = attempt(self.positive_steps, clauses["deadline"].value, "the deadline") if "deadline" in clauses else None
+        if deadline is not None and deadline > LIMITS.deadline_steps:
+            # Every episode, evaluation and oracle horizon is this long: beyond it nothing finishes.
+            self.d.add("E117", f"a deadline of {deadline:,} steps is more than {LIMITS.deadline_steps:,}",
+                       clauses["deadline"].span, hint="a larger dt makes the same time fewer steps; "
+                       "`asapc --max-deadline STEPS` raises the limit")
+            errors += 1
+            deadline = None
+        tolerances: tuple[int, ...] = (deadline,) if deadline else ()
+        if "tolerances" in clauses:
+            tolerances = tuple(attempt(self.positive_steps, d, "a tolerance", default=0) for d in clauses["tolerances"].value)
+        episode = (deadline, deadline) if deadline else (1, 1)
+        if "episode" in clauses:
+            lo_d, hi_d = clauses["episode"].value
+            lo = attempt(self.positive_steps, lo_d, "the shortest episode", default=1)
+            hi = attempt(self.positive_steps, hi_d, "the longest episode", default=1)
+            if lo and hi and lo > hi:
+                self.d.add("E105", f"the episode range {lo}..{hi} has its lower bound above its upper bound", clauses["episode"].span)
+                errors += 1
+            episode = (lo or 1, hi or 1)
+        reward = attempt(self.reward, clauses["reward"].value, asap, avoid) if "reward" in clauses else RewardModel()
+        asap_regions = ir.positive_regions(asap) if asap is not None else ()
+        if reward is not None and reward.kind == "distance" and asap is not None and not asap_regions:
+            self.d.add("E117", "reward distance(...) measures the distance to the `asap` region, but `asap` names no region",
+                       clauses["reward"].span, hint="write `asap in REGION` (possibly with more conditions), or use reward asap or rho")
+            errors += 1
+        r_sat = None
+        if "r_sat" in clauses:
+            value = clauses["r_sat"].value
+            if not (isinstance(value, ast.Name) and value.id == "auto"):
+                r_sat = attempt(self.finite_constant, value, "r_sat")
+        observe = ("state",)
+        if "observe" in clauses:
+            observe = attempt(self.observe, clauses["observe"].value, default=("state",))
+        train = attempt(self.train, clauses["train"].value, default={}) if "train" in clauses else {}
+        init_box = attempt(self.task_init, clauses["init"].value) if "init" in clauses else None
+        if errors or asap is None or deadline is None:
+            return None
+        return TaskModel(
+            t.name, asap, avoid, deadline, tolerances, episode, reward or RewardModel(), r_sat, observe, train, t.span,
+            {k: c.span for k, c in clauses.items()},
+            asap_regions, ir.positive_regions(avoid) if avoid is not None else (), init_box,
+        )
+
+    def task_init(self, box: ast.Box) -> tuple[tuple[float, ...], tuple[float, ...]]:
+        """``init box(theta in [a, b], ...)``: the task's initial box, each named state's range
+        replacing the system's (the others keep theirs), with the checks of a state's `init`."""
+        by_name = {s.name: s for s in self.states}
+        low = [s.init_low for s in self.states]
+        high = [s.init_high for s in self.states]
+        seen: dict[str, Span] = {}
+        errors = 0
+        if not box.sides:
+            self.d.add("E117", "`init box()` names no state", box.span, hint="write init box(x in [a, b], ...)")
+            raise _Unresolved
+        for side in box.sides:
+            state = by_name.get(side.var)
+            if state is None:
+                kind = self.kinds.get(side.var, (None,))[0]
+                if kind is None:
+                    sug = _closest(side.var, list(by_name))
+                    self.d.add("E101", f"unknown state '{side.var}' in the task's init box", side.span,
+                               hint=f"did you mean '{sug}'?" if sug else None)
+                else:
+                    self.d.add("E103", f"'{side.var}' is {_a(kind)}; an initial box is over states", side.span)
+                errors += 1
+                continue
+            if side.var in seen:
+                self.d.add("E102", f"state '{side.var}' is given twice in the init box (first at line {seen[side.var].line})",
+                           side.span)
+                errors += 1
+                continue
+            seen[side.var] = side.span
+            try:
+                lo, hi = self.range_(side.bounds, f"the init range of '{side.var}'")
+            except _Unresolved:
+                errors += 1
+                continue
+            if lo < state.low or hi > state.high:
+                self.d.add("E108", f"the init range [{_fmt(lo)}, {_fmt(hi)}] of '{side.var}' is not inside its state space "
+                           f"[{_fmt(state.low)}, {_fmt(state.high)}]", side.bounds.span)
+                errors += 1
+                continue
+            if not (math.isfinite(lo) and math.isfinite(hi) and math.isfinite(hi - lo)):
+                self.d.add("E122", f"the init range [{_fmt(lo)}, {_fmt(hi)}] of '{side.var}' cannot be sampled uniformly: "
+                           "it must be finite", side.bounds.span)
+                errors += 1
+                continue
+            low[state.index], high[state.index] = lo, hi
+        if errors:
+            raise _Unresolved
+        return tuple(low), tuple(high)
+
+    def positive_steps(self, d: ast.Duration, what: str) -> int:
+        n = self.steps(d, what)
+        if n is None or n < 1:
+            self.d.add("E117", f"{what} must be at least one step", d.span)
+            raise _Unresolved
+        return n
+
+    def reward(self, syn: ast.RewardSyntax, asap, avoid) -> RewardModel:
+        if syn.kind not in REWARDS:
+            sug = _closest(syn.kind, REWARDS)
+            self.d.add("E117", f"unknown reward '{syn.kind}'", syn.span,
+                       hint=f"did you mean '{sug}'?" if sug else "choose asap, rho, rho(window = D) or distance(...)")
+            raise _Unresolved
+        params: dict[str, float] = {}
+        for s in syn.settings:
+            if s.name not in REWARDS[syn.kind]:
+                self.d.add("E117", f"reward {syn.kind} has no setting '{s.name}'", s.name_span,
+                           hint=f"it takes {', '.join(REWARDS[syn.kind]) or 'no settings'}")
+                raise _Unresolved
+            if s.name == "window":
+                if isinstance(s.value, ast.Duration):  # rho(window = 1s)
+                    params["window"] = self.positive_steps(s.value, "the reward window")
+                elif isinstance(s.value, ast.Number):
+                    params["window"] = self.positive_steps(ast.Duration(s.value.value, "steps", s.value.span), "the reward window")
+                else:
+                    params["window"] = self.constant(s.value, "the reward window")
+                    if not float(params["window"]).is_integer() or params["window"] < 1:
+                        self.d.add("E117", "the reward window must be a whole number of steps, at least 1", s.span)
+                        raise _Unresolved
+                    params["window"] = int(params["window"])
+            else:
+                params[s.name] = self.finite_constant(s.value, f"the reward setting {s.name}")
+        if syn.kind == "distance":
+            defaults = {"lambda_t": 1.0, "lambda_o": 1.0, "base": 0.0}
+            params = {**defaults, **params}
+        return RewardModel(syn.kind, params, syn.span)
+
+    def observe(self, items) -> tuple[str, ...]:
+        names = []
+        for name, span in items:
+            if name not in OBSERVE_ITEMS:
+                sug = _closest(name, OBSERVE_ITEMS)
+                self.d.add("E117", f"cannot observe '{name}'", span, hint=f"did you mean '{sug}'?" if sug else "observe state or state, time")
+                raise _Unresolved
+            if name in names:
+                self.d.add("E117", f"'{name}' is observed twice", span)
+                raise _Unresolved
+            names.append(name)
+        if names[0] != "state":
+            self.d.add("E117", "the observation starts with the state: write `observe state, time`", items[0][1])
+            raise _Unresolved
+        return tuple(names)
+
+    def train(self, settings) -> dict:
+        out: dict = {}
+        errors = 0
+        for s in settings:
+            if s.name not in TRAIN_SETTINGS:
+                sug = _closest(s.name, TRAIN_SETTINGS)
+                self.d.add("E117", f"unknown training setting '{s.name}'", s.name_span,
+                           hint=f"did you mean '{sug}'?" if sug else "settings: " + ", ".join(TRAIN_SETTINGS))
+                errors += 1
+                continue
+            kind = TRAIN_SETTINGS[s.name]
+            value = s.value
+            if kind == "str":
+                text = value[1:-1] if isinstance(value, str) else (value.id if isinstance(value, ast.Name) else None)
+                if text is None:
+                    self.d.add("E117", f"'{s.name}' takes a name, such as `{s.name} = sac`", s.span)
+                    errors += 1
+                    continue
+                if s.name == "algo" and text not in ALGORITHMS:
+                    sug = _closest(text, ALGORITHMS)
+                    self.d.add("E117", f"unknown algorithm '{text}'", s.span,
+                               hint=f"did you mean '{sug}'?" if sug else "choose " + ", ".join(ALGORITHMS))
+                    errors += 1
+                    continue
+                out[s.name] = text
+                continue
+            if isinstance(value, str):
+                self.d.add("E117", f"'{s.name}' takes a number, not a string", s.span)
+                errors += 1
+                continue
+            try:
+                number = self.constant(value, f"the training setting {s.name}")
+            except _Unresolved:
+                errors += 1
+                continue
+            if kind == "int":
+                if not float(number).is_integer() or number < 0:
+                    self.d.add("E117", f"'{s.name}' must be a whole number, not {_fmt(number)}", s.span)
+                    errors += 1
+                    continue
+                number = int(number)
+            out[s.name] = number
+        if errors:
+            raise _Unresolved
+        return out
