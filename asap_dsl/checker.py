@@ -87,6 +87,16 @@ class Checker(SystemChecks, TaskChecks):
             return
         self.d.add("E101", msg, span, hint)
 
+    def not_a_state(self, name: str, span: Span, states: list[str], where: str, code: str, role: str) -> None:
+        """Report ``name`` where a state must stand: E101 with the closest state if it is no name
+        at all, else ``code`` saying what it is and what ``role`` needs."""
+        kind = self.kinds.get(name, (None,))[0]
+        if kind is None:
+            sug = _closest(name, states)
+            self.d.add("E101", f"unknown state '{name}' in {where}", span, hint=f"did you mean '{sug}'?" if sug else None)
+        else:
+            self.d.add(code, f"'{name}' is {_a(kind)}; {role}", span)
+
     # ------------------------------------------------------------------ expressions (numbers)
     def number(self, e: ast.Expr, allowed: tuple[str, ...], context: str) -> None:
         """Check that ``e`` is a numeric expression over names of the ``allowed`` kinds."""

@@ -196,13 +196,8 @@ class SystemChecks:
         known = set(state_names)  # looked up once per equation: a set, or 20,000 states cost seconds
         for eq in dyn.equations:
             if eq.target not in known:
-                kind = self.kinds.get(eq.target, (None,))[0]
-                if kind is None:
-                    sug = _closest(eq.target, state_names)
-                    self.d.add("E101", f"unknown state '{eq.target}' in {dyn.kind}", eq.target_span,
-                               hint=f"did you mean '{sug}'?" if sug else None)
-                else:
-                    self.d.add("E110", f"'{eq.target}' is {_a(kind)}; {dyn.kind} equations are for states", eq.target_span)
+                self.not_a_state(eq.target, eq.target_span, state_names, dyn.kind, "E110",
+                                 f"{dyn.kind} equations are for states")
                 errors += 1
                 continue
             if eq.target in given:

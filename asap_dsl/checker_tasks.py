@@ -7,7 +7,7 @@ import math
 from typing import Callable, Optional
 
 from . import ast
-from .checker_common import (ALGORITHMS, OBSERVE_ITEMS, REWARDS, TRAIN_SETTINGS, _a, _fmt,
+from .checker_common import (ALGORITHMS, OBSERVE_ITEMS, REWARDS, TRAIN_SETTINGS, _fmt,
                              _Unresolved, dependency_order)
 from .diagnostics import Span
 from .diagnostics import closest as _closest
@@ -121,13 +121,8 @@ class TaskChecks:
         for side in box.sides:
             state = by_name.get(side.var)
             if state is None:
-                kind = self.kinds.get(side.var, (None,))[0]
-                if kind is None:
-                    sug = _closest(side.var, list(by_name))
-                    self.d.add("E101", f"unknown state '{side.var}' in the task's init box", side.span,
-                               hint=f"did you mean '{sug}'?" if sug else None)
-                else:
-                    self.d.add("E103", f"'{side.var}' is {_a(kind)}; an initial box is over states", side.span)
+                self.not_a_state(side.var, side.span, list(by_name), "the task's init box", "E103",
+                                 "an initial box is over states")
                 errors += 1
                 continue
             if side.var in seen:
