@@ -286,16 +286,24 @@ class ScalarForm:
     error, an overflow, a division by zero), ``fallback(row)`` computes it with numpy instead,
     so that the value is the batched evaluator's."""
 
-    __slots__ = ("_build", "_fn", "_fallback")
+    __slots__ = ("_build", "_fn", "_fallback", "_build_rho")
 
-    def __init__(self, build: Callable[[], Callable], fallback: Callable):
-        self._build, self._fn, self._fallback = build, None, fallback
+    def __init__(self, build: Callable[[], Callable], fallback: Callable,
+                 build_rho: Optional[Callable[[], Callable]] = None):
+        self._build, self._fn, self._fallback, self._build_rho = build, None, fallback, build_rho
 
     def compiled(self) -> Callable:
         """The compiled function itself (no fallback): for callers that handle the failures."""
         if self._fn is None:
             self._fn = self._build()
         return self._fn
+
+    def compiled_rho(self) -> Callable:
+        """``row -> robustness`` alone, compiled (no fallback; no Boolean computed)."""
+        if self._build_rho is None:
+            fn = self.compiled()
+            return lambda row: fn(row)[0]
+        return self._build_rho()
 
     def __call__(self, row):
         fn = self._fn
@@ -324,7 +332,12 @@ def scalar_comparison(left: ast.Expr, right: ast.Expr, op: str, symbols: Symbols
             a, b = _fn(row, ())
             return (b - a if _less else a - b), _cmp(a, b)
         return atom
-    return ScalarForm(build, fallback)
+
+    def build_rho():  # the margin as the batched atom computes it: one expression, one call
+        margin = ast.Binary("-", right, left, left.span) if less else ast.Binary("-", left, right, left.span)
+        fn = compile_function([margin], symbols, SCALAR)
+        return lambda row, _fn=fn: _fn(row, ())[0]
+    return ScalarForm(build, fallback, build_rho)
 
 
 def nodes_in(e: ast.Expr) -> Iterable[ast.Expr]:

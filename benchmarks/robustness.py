@@ -157,7 +157,8 @@ BATCH_ONE = [("w = 10", 10, 10, None), ("w = 100", 100, 100, 20.0), ("w = 1000",
 
 def batch_one(traces, steps):
     """One trace, one update per step (a single environment): ``monitor_for(node, 1)`` (the
-    scalar monitor) and, for reference, the batched Monitor at B = 1, against rtamt's update."""
+    scalar monitor) and, for reference, the batched Monitor at B = 1, against rtamt's update;
+    the best of three runs on each side."""
     import asap_dsl
 
     print(f"\nonline, ONE trace (batch 1, one update per step, {steps} steps), per update:")
@@ -178,10 +179,13 @@ def batch_one(traces, steps):
         ours, out = min((run(online.monitor_for(node, 1, satisfaction=False)) for _ in range(3)), key=lambda r: r[0])
         ours_sat, _ = run(online.monitor_for(node, 1))
         batched, _ = run(online.Monitor(node, 1, satisfaction=False))
-        spec = rtamt_spec("online", f"(historically[0,{wh}](x < 1.0)) and (once[0,{wo}](y > 0.0))")
-        t0 = time.perf_counter()
-        rt = [spec.update(i, [("x", xs[i]), ("y", ys[i])]) for i in range(steps)]
-        rt_t = (time.perf_counter() - t0) / steps
+        def run_rtamt():
+            spec = rtamt_spec("online", f"(historically[0,{wh}](x < 1.0)) and (once[0,{wo}](y > 0.0))")
+            t0 = time.perf_counter()
+            rt = [spec.update(i, [("x", xs[i]), ("y", ys[i])]) for i in range(steps)]
+            return (time.perf_counter() - t0) / steps, rt
+
+        rt_t, rt = min((run_rtamt() for _ in range(3)), key=lambda r: r[0])  # best of 3, as ours
         assert np.array_equal(np.array(rt), np.array(out)), f"{label}: rtamt and asap_dsl disagree"
         ratio = rt_t / ours
         verdict = "" if target is None else f"  ({'PASS' if ratio >= target else 'FAIL'}, target >= {target:g}x)"

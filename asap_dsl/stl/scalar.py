@@ -27,6 +27,7 @@ from ..expr import ScalarForm
 from . import ir
 
 _INF = math.inf
+_F64 = np.dtype(np.float64)
 
 
 class ScalarMonitor:
@@ -48,6 +49,7 @@ class ScalarMonitor:
         self._root = self._compile(node)
         self._run = _chain(self._steps)
         self._t = -1
+        self._shape = (1, n_state) if n_state is not None else None  # of the states the fast path takes
         self._rob = np.full(1, np.nan)
         self._sat = np.zeros(1, dtype=bool)
 
@@ -75,9 +77,18 @@ class ScalarMonitor:
 
     def update(self, states, mask=None) -> np.ndarray:
         """Append ``states [1, n]`` (unless ``mask`` is ``[False]``); ρ at the newest step, ``[1]``."""
-        if mask is not None and not _flag(mask, "update"):
-            return self._rob
-        self._row[0] = self._read(states)
+        row = None
+        if mask is None and type(states) is np.ndarray and states.dtype is _F64 and states.shape == self._shape:
+            row = states.tolist()[0]  # the common case, checked cheaply: finite unless the sum is not
+            total = sum(row)
+            if total - total != 0.0:
+                row = None
+        if row is None:
+            if mask is not None and not _flag(mask, "update"):
+                return self._rob
+            row = self._read(states)
+            self._shape = (1, len(row))
+        self._row[0] = row
         t = self._t = self._t + 1
         self._run(t)
         rob = np.empty(1)
@@ -99,12 +110,6 @@ class ScalarMonitor:
 
     # ---- input -------------------------------------------------------------------------------
     def _read(self, states) -> tuple:
-        if type(states) is np.ndarray and states.dtype == np.float64 and states.shape[0] == 1 and states.ndim == 2 \
-                and (self.n_state is None or states.shape[1] == self.n_state):
-            row = states.tolist()[0]  # the common case, checked cheaply
-            total = sum(row)
-            if total - total == 0.0:  # finite (a NaN or an inf makes this NaN)
-                return row
         s = np.asarray(states, dtype=np.float64)
         if s.shape[0] != 1 or s.ndim != 2:
             raise ValueError(f"states must have shape [1, n_state]; got {s.shape}")
@@ -209,12 +214,12 @@ def _atom_step(atom: ir.Atom, i: int, R: list, S: list, row: list, sat: bool):
         R[i] = r
         S[i] = 1.0 if b else -1.0
 
-    if not sat and isinstance(form, ScalarForm):  # robustness only: the compiled form called directly
-        fast = form.compiled()
+    if not sat and isinstance(form, ScalarForm):  # robustness only: the compiled margin called directly
+        fast = form.compiled_rho()
 
         def step_rho(t, fast=fast, form=form):
             try:
-                r = fast(row[0])[0]
+                r = fast(row[0])
             except (ArithmeticError, ValueError):
                 r = form(row[0])[0]
             if r != r:  # NaN: as numpy computes it
