@@ -20,9 +20,11 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Any, Mapping
 
+from asap_dsl.checker_common import ALGORITHMS  # what `train { algo = ... }` may name: the language owns the list
+
 __all__ = ["ALGORITHMS", "OFF_POLICY", "PRESETS", "Preset", "get_preset"]
 
-ALGORITHMS = ("sac", "td3", "ddpg", "ppo", "a2c")
+
 OFF_POLICY = ("sac", "td3", "ddpg")
 
 
