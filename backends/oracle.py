@@ -10,7 +10,9 @@ for each initial state x0 the smallest N such that some action sequence within t
 reaches ``asap`` at step N, with ``avoid`` false and the state inside the state space at steps
 1..N, under the simulator's very discretisation (:func:`asap_dsl.dynamics.casadi_step`).
 
-How
+How (the lower bounds on N are in :mod:`asap_dsl.backends.oracle_bounds`, the normal form of
+``asap`` in :mod:`asap_dsl.backends.oracle_goals`, the results in
+:mod:`asap_dsl.backends.oracle_results`)
 ---
 * One NLP per (N, disjunct of ``asap`` in disjunctive normal form), built once with CasADi
   (multiple shooting: the states at steps 1..N are variables tied by ``x_k = step(x_{k-1},
@@ -73,11 +75,11 @@ import numpy as np
 from asap_dsl import ast
 from asap_dsl.diagnostics import Span
 from asap_dsl.dynamics import casadi_step, numpy_step
-from asap_dsl.expr import INTERVAL, casadi_namespace, compile_function, degree
-from asap_dsl.intervals import Interval
+from asap_dsl.expr import casadi_namespace, compile_function, degree
 from asap_dsl.sampling import EVAL_SEED, task_states
 from asap_dsl.stl import ir, offline
 
+from .oracle_bounds import HorizonBounds
 from .oracle_goals import OracleUnsupported, _dnf, _flatten_and, _literals, _normal
 from .oracle_results import OracleReport, StateResult
 
@@ -92,8 +94,6 @@ RESTARTS = 1
 #: Seconds of horizon search per initial state before it is reported as ``timeout`` (a deadline
 #: of 1,000,000 steps with an unreachable goal would otherwise search for days).
 STATE_TIME_LIMIT = 120.0
-#: Relative widening of the interval enclosure per step (covers floating-point rounding).
-INTERVAL_SLACK = 1e-9
 
 IPOPT_OPTIONS = {
     "ipopt.print_level": 0,
@@ -107,7 +107,7 @@ IPOPT_OPTIONS = {
 }
 
 
-class Oracle:
+class Oracle(HorizonBounds):
     """Minimum-time oracle for one task of a program (built once, solved for many states)."""
 
     def __init__(self, prog, task: Optional[str] = None, ipopt_options: Optional[dict] = None,
@@ -179,166 +179,6 @@ class Oracle:
         if atom.region is not None:
             return self._coords_linear(atom.region)
         return degree(atom.margin, self.system.symbols) <= 1
-
-    # ------------------------------------------------------------------ analysis
-    def _is_linear(self) -> bool:
-        s = self.system
-        if s.kind == "ode" and s.integrator.method == "exact":
-            return True
-        return all(degree(e, s.symbols) <= 1 for e in s.equations)
-
-    def _coords_linear(self, region: str) -> bool:
-        return all(degree(ast.Name(c, Span()), self.system.symbols) <= 1 for c in self.regions[region].coords)
-
-    def _affine_step(self):
-        """``(A, B, c)`` of the (linear) one-step map, probed through the simulator's step."""
-        n, m = self.n, self.m
-        f = self.step_np
-        c = f(np.zeros((1, n)), np.zeros((1, m)))[0]
-        A = np.stack([f(np.eye(n)[i:i + 1], np.zeros((1, m)))[0] - c for i in range(n)], axis=1)
-        B = np.stack([f(np.zeros((1, n)), np.eye(m)[j:j + 1])[0] - c for j in range(m)], axis=1)
-        return A, B, c
-
-    def _coord_affine(self, region: str):
-        """``(P, p)`` with region values ``v = P x + p`` (linear coordinates only)."""
-        vals = self.regions[region].values
-        p = vals(np.zeros((1, self.n)))[0]
-        P = np.stack([vals(np.eye(self.n)[i:i + 1])[0] - p for i in range(self.n)], axis=1)
-        return P, p
-
-    def lower_bound(self, x0: np.ndarray, until: float = math.inf) -> int:
-        """The smallest N not excluded by a sound test: the support-function test for linear
-        dynamics, interval reachability for non-linear ones (0 when disabled). At the clock time
-        ``until`` (``time.perf_counter``) the test stops where it is: still a lower bound."""
-        if not self.goal_now:
-            return 0
-        if not self.linear:
-            return self.interval_lower_bound(x0, until) if self.interval_bound else 0
-        A, B, c = self._affine
-        affine = {r: self._coord_affine(r) for conj in self.goal_now for r, pos in conj if pos}
-        free = np.asarray(x0, float)
-        gens: list[np.ndarray] = []  # B, A B, A^2 B, ... (A^j B multiplies u_{N-1-j})
-        Aj_B = B.copy()
-        for N in range(self.deadline + 1):
-            if N % 256 == 255 and time.perf_counter() > until:
-                return N
-            if N > 0:
-                free = A @ free + c
-                gens.append(Aj_B)
-                Aj_B = A @ Aj_B
-            for conj in self.goal_now:
-                if all(self._literal_possible(r, pos, affine.get(r), free, gens) for r, pos in conj):
-                    return N
-        return self.deadline + 1
-
-    def _literal_possible(self, region: str, positive: bool, aff, free, gens) -> bool:
-        if not positive:
-            return True  # no bound from "outside a region"
-        P, p = aff
-        R = self.regions[region]
-        y = P @ free + p
-        if R.kind == "ball":
-            diff = np.asarray(R.centre) - y
-            gap = float(np.linalg.norm(diff)) - R.radius
-        else:
-            proj = np.clip(y, R.low, R.high)
-            diff = proj - y
-            gap = float(np.linalg.norm(diff))
-        if gap <= 0:
-            return True
-        if not gens:
-            return False
-        e = diff / np.linalg.norm(diff)
-        d = P.T @ e
-        g = np.stack([G.T @ d for G in gens])  # [N, m]
-        reach = float(np.sum(np.maximum(g * self.ulow, g * self.uhigh)))
-        return gap <= reach + 1e-9 * (1 + abs(gap))
-
-    # ------------------------------------------------------------------ interval bound
-    def _interval_setup(self):
-        if self._interval_fns is None:
-            s = self.system
-            rhs = compile_function(s.equations, s.symbols, INTERVAL)
-            coords = {r: compile_function([ast.Name(c, Span()) for c in self.regions[r].coords], s.symbols, INTERVAL)
-                      for conj in self.goal_now for r, pos in conj if pos}
-            self._interval_fns = (rhs, coords)
-        return self._interval_fns
-
-    def _interval_step(self, S: list, A: list) -> list:
-        """An enclosure of the one-step map over the box ``S`` of states and ``A`` of actions
-        (the simulator's own integrator, evaluated in interval arithmetic)."""
-        rhs = self._interval_setup()[0]
-        s = self.system
-        f = lambda xs: list(rhs(xs, A))  # noqa: E731
-        if s.kind == "map":
-            return f(S)
-        dh = s.dt / s.integrator.substeps
-        for _ in range(s.integrator.substeps):
-            if s.integrator.method == "euler":
-                S = [x + dh * k for x, k in zip(S, f(S))]
-            else:
-                k1 = f(S)
-                k2 = f([x + (0.5 * dh) * k for x, k in zip(S, k1)])
-                k3 = f([x + (0.5 * dh) * k for x, k in zip(S, k2)])
-                k4 = f([x + dh * k for x, k in zip(S, k3)])
-                S = [x + (dh / 6.0) * (a + 2.0 * b + 2.0 * c + d) for x, a, b, c, d in zip(S, k1, k2, k3, k4)]
-        return [Interval.of(x) for x in S]
-
-    def _goal_possible(self, S: list) -> bool:
-        """False only if no point of the box ``S`` satisfies any disjunct of ``asap``."""
-        coords = self._interval_setup()[1]
-        for conj in self.goal_now:
-            ok = True
-            for region, pos in conj:
-                if not pos:
-                    continue  # no bound from "outside a region"
-                R = self.regions[region]
-                v = [Interval.of(c) for c in coords[region](S, ())]
-                if R.kind == "ball":
-                    d2 = 0.0
-                    for iv, c in zip(v, R.centre):
-                        gap = max(iv.lo - c, c - iv.hi, 0.0)
-                        d2 += gap * gap
-                    if not d2 <= R.radius ** 2 * (1 + 1e-9) + 1e-12:
-                        ok = False
-                else:
-                    for iv, lo, hi in zip(v, R.low, R.high):
-                        tol = 1e-9 * (1 + abs(lo) + abs(hi))
-                        if not (iv.lo <= hi + tol and iv.hi >= lo - tol):
-                            ok = False
-                if not ok:
-                    break
-            if ok:
-                return True
-        return False
-
-    def interval_lower_bound(self, x0: np.ndarray, until: float = math.inf) -> int:
-        """The first N at which the interval enclosure of the reachable set (all action
-        sequences, states kept inside the state space at steps 1..N, as the task requires) can
-        meet ``asap``; ``deadline + 1`` when it cannot up to the deadline. Sound: the enclosure
-        contains every admissible trajectory's state, widened each step for rounding."""
-        A = [Interval(float(lo), float(hi)) for lo, hi in zip(self.ulow, self.uhigh)]
-        S = [Interval(float(v), float(v)) for v in x0]
-        try:
-            for N in range(1, self.deadline + 1):
-                if N % 256 == 0 and time.perf_counter() > until:
-                    return N
-                S = self._interval_step(S, A)
-                out = []
-                for iv, lo, hi in zip(S, self.low, self.high):
-                    if math.isnan(iv.lo) or math.isnan(iv.hi):
-                        return N  # lost the enclosure: no bound from here on
-                    w = INTERVAL_SLACK * (1.0 + max(abs(iv.lo), abs(iv.hi)))
-                    a, b = max(iv.lo - w, float(lo)), min(iv.hi + w, float(hi))
-                    if a > b:
-                        return self.deadline + 1  # no admissible trajectory stays in the state space
-                    out.append(Interval(a, b))
-                S = out
-                if self._goal_possible(S):
-                    return N
-        except (ZeroDivisionError, OverflowError, ValueError, TypeError):
-            return N
-        return self.deadline + 1
 
     # ------------------------------------------------------------------ NLP
     def _coords(self, region: str):
