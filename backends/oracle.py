@@ -10,10 +10,11 @@ for each initial state x0 the smallest N such that some action sequence within t
 reaches ``asap`` at step N, with ``avoid`` false and the state inside the state space at steps
 1..N, under the simulator's very discretisation (:func:`asap_dsl.dynamics.casadi_step`).
 
-How (the lower bounds on N are in :mod:`asap_dsl.backends.oracle_bounds`, the normal form of
-``asap`` in :mod:`asap_dsl.backends.oracle_goals`, the results in
-:mod:`asap_dsl.backends.oracle_results`)
+How
 ---
+(The lower bounds on N are in :mod:`asap_dsl.backends.oracle_bounds`, the normal form of ``asap``
+in :mod:`asap_dsl.backends.oracle_goals`, the results in :mod:`asap_dsl.backends.oracle_results`.)
+
 * One NLP per (N, disjunct of ``asap`` in disjunctive normal form), built once with CasADi
   (multiple shooting: the states at steps 1..N are variables tied by ``x_k = step(x_{k-1},
   u_{k-1})``), solved by IPOPT through an ``nlpsol`` whose parameter is x0. The same NLP serves
