@@ -18,7 +18,7 @@ from typing import Optional, Sequence
 
 from . import ast, intervals
 from .diagnostics import Span
-from .expr import BUILTIN_CONSTANTS, Symbols
+from .expr import BUILTIN_CONSTANTS, LetWalker, Symbols
 from .intervals import Interval
 
 _UNKNOWN = Interval(-math.inf, math.inf)
@@ -97,7 +97,7 @@ class DomainChecker:
         return self._walker.issues[start:]
 
 
-class _Walker:
+class _Walker(LetWalker):
     def __init__(self, symbols: Symbols, state_box, action_box):
         self.sym = symbols
         self.states = [Interval(float(lo), float(hi)) for lo, hi in state_box]
@@ -182,26 +182,7 @@ class _Walker:
         return out, failing
 
     def value(self, root) -> tuple[Interval, bool]:
-        done: list[tuple[Interval, bool]] = []
-        stack: list[tuple[object, int]] = [(root, -1)]
-        while stack:
-            node, mark = stack.pop()
-            if mark < 0:
-                leaf = self._leaf(node)
-                if leaf is not None:
-                    done.append(leaf)
-                    continue
-                stack.append((node, len(done)))
-                for child in reversed(self._children(node)):
-                    stack.append((child, -1))
-                continue
-            args = done[mark:]
-            del done[mark:]
-            if isinstance(node, ast.Name) and node.id in self.lets:
-                done.append(self.lets[node.id])
-                continue
-            done.append(self._combine(node, args))
-        return done[0]
+        return self.walk(root)
 
 
 __all__ = ["DomainChecker", "DomainIssue", "domain_issues"]

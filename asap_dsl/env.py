@@ -81,6 +81,9 @@ class _Core:
         # Stepped after ``done`` is known (which needs ``avoid`` only): with autoreset, these step and
         # restart in one call each (atoms evaluated once on the reached and the restart states).
         self._late = [self.asap] + self.reward.trackers
+        lo, hi = tm.rho_bounds  # for info's finite ρ (computed once: bounds walk the formula)
+        big = np.finfo(np.float64).max
+        self._rho_lo, self._rho_hi = (lo if np.isfinite(lo) else -big), (hi if np.isfinite(hi) else big)
         self.kmin, self.kmax = tm.episode
         self.low, self.high = sysm.state_low, sysm.state_high
         self.observe_time = "time" in tm.observe
@@ -108,9 +111,7 @@ class _Core:
     def _finite_rho(self, rho: np.ndarray) -> np.ndarray:
         """ρ for ``info``: NaN (the episode ended as non_finite) as 0; ±inf (an empty past window
         at the first steps) as the formula's bound, or the largest float where that is infinite."""
-        lo, hi = self.tm.rho_bounds
-        big = np.finfo(np.float64).max
-        return np.nan_to_num(rho, nan=0.0, posinf=hi if np.isfinite(hi) else big, neginf=lo if np.isfinite(lo) else -big)
+        return np.nan_to_num(rho, nan=0.0, posinf=self._rho_hi, neginf=self._rho_lo)
 
 
     def _sample(self, m: int):

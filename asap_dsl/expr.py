@@ -97,7 +97,38 @@ class Symbols:
     lets: Mapping[str, ast.Expr]
 
 
-class _Gen:
+class LetWalker:
+    """A post-order walk of an expression with an explicit stack (its depth is the user's), in
+    which a let is walked once, the first time it is met: subclasses give ``_leaf(node)`` (a
+    value, or None for a node with children), ``_children(node)`` and ``_combine(node, values)``,
+    and record a let's value in ``self.lets`` when combining its Name."""
+
+    lets: dict
+
+    def walk(self, root: ast.Expr):
+        done: list = []               # values of finished nodes, in post-order
+        stack: list[tuple[ast.Expr, int]] = [(root, -1)]  # (node, values before its children); -1: not expanded
+        while stack:
+            node, mark = stack.pop()
+            if mark < 0:
+                leaf = self._leaf(node)
+                if leaf is not None:
+                    done.append(leaf)
+                    continue
+                stack.append((node, len(done)))
+                for child in reversed(self._children(node)):
+                    stack.append((child, -1))
+                continue
+            args = done[mark:]
+            del done[mark:]
+            if isinstance(node, ast.Name) and node.id in self.lets:  # a let done meanwhile by a sibling
+                done.append(self.lets[node.id])
+                continue
+            done.append(self._combine(node, args))
+        return done[0]
+
+
+class _Gen(LetWalker):
     """Straight-line code for a list of expressions: every operation is one assignment to a
     temporary, emitted in a post-order walk with an explicit stack. Neither the walk nor the
     generated code nests, so a sum of 10,000 terms or a chain of 10,000 lets compiles (Python's
@@ -161,26 +192,7 @@ class _Gen:
 
     def expr(self, root: ast.Expr) -> str:
         """Emit ``root``; returns the temporary (or literal) that holds its value."""
-        done: list[str] = []          # values of finished nodes, in post-order
-        stack: list[tuple[ast.Expr, int]] = [(root, -1)]  # (node, values before its children); -1: not expanded
-        while stack:
-            node, mark = stack.pop()
-            if mark < 0:
-                leaf = self._leaf(node)
-                if leaf is not None:
-                    done.append(leaf)
-                    continue
-                stack.append((node, len(done)))
-                for child in reversed(self._children(node)):
-                    stack.append((child, -1))
-                continue
-            args = done[mark:]
-            del done[mark:]
-            if isinstance(node, ast.Name) and node.id in self.lets:  # emitted meanwhile by a sibling
-                done.append(self.lets[node.id])
-                continue
-            done.append(self._combine(node, args))
-        return done[0]
+        return self.walk(root)
 
 
 def _literal(value: float) -> str:

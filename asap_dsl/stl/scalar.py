@@ -280,7 +280,9 @@ def _window_step(every: bool, interval: ir.Interval, a: int, i: int, R: list, S:
             val.clear()
         running[0] = running[1] = empty
 
-    if not sat and lo == 0 and hi is not None:  # the common case, one lane: no loop over lanes
+    # The common case, one lane: no loop over lanes. Two copies (min and max) rather than one
+    # with a comparison operator passed in: an extra call per element would cost a third more.
+    if not sat and lo == 0 and hi is not None:
         _, _, idx, val = lanes[0]
         push, popv, popi, appi = val.append, val.pop, idx.pop, idx.append
         left_v, left_i = val.popleft, idx.popleft
