@@ -21,11 +21,11 @@ def __getattr__(name):  # lazy: gymnasium, stable-baselines3 and torch load only
 
         return getattr(env, name)
     if name == "train":
-        from .backends.training import train
+        from .backends.rl import train
 
         return train
     if name == "evaluate":
-        from .backends.evaluation import evaluate
+        from .backends.rl import evaluate
 
         return evaluate
     raise AttributeError(f"module 'asap_dsl' has no attribute '{name}'")

@@ -17,7 +17,7 @@ import time
 from pathlib import Path
 
 import asap_dsl
-from asap_dsl.backends.oracle import run, tighten
+from asap_dsl.backends.oracle.solver import run, tighten
 
 SPECS = Path(__file__).resolve().parents[1] / "specs"
 

@@ -34,8 +34,8 @@ def _time_to_ceiling(spec: Path, task: str, preset: str, seed: int, ceiling: dic
                      limit: float, steps: int, log, n_envs=None, settings=None) -> dict:
     from stable_baselines3.common.callbacks import BaseCallback
 
-    from asap_dsl.backends.sb3 import PolicyController, Scaling
-    from asap_dsl.backends.config import resolve_config
+    from asap_dsl.backends.rl.sb3 import PolicyController, Scaling
+    from asap_dsl.backends.rl.config import resolve_config
 
     prog = asap_dsl.load(spec)
     cfg = resolve_config(prog, task, preset=preset, seed=seed, steps=steps, n_envs=n_envs, settings=settings)
@@ -98,7 +98,7 @@ def main() -> int:
     for item in args.set:
         key, _, value = item.partition("=")
         overrides[key.strip()] = json.loads(value)
-    from asap_dsl.backends.oracle_cache import oracle_for
+    from asap_dsl.backends.oracle.cache import oracle_for
 
     prog = asap_dsl.load(args.spec)
     oracle = oracle_for(prog, args.task, EVAL_SEED, 1000, workers=2)

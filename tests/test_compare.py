@@ -34,8 +34,8 @@ def _manifests(out: Path) -> dict:
 
 
 def test_greedy_and_oracle_controllers(tiny):
-    from asap_dsl.backends.controllers import GreedyController, OracleController, candidate_actions
-    from asap_dsl.backends.oracle import run as oracle_run
+    from asap_dsl.backends.compare.controllers import GreedyController, OracleController, candidate_actions
+    from asap_dsl.backends.oracle.solver import run as oracle_run
     from asap_dsl.rollout import rollout
 
     prog = asap_dsl.load(tiny)
@@ -145,7 +145,7 @@ def test_html_report_renders_in_headless_chromium_without_requests(tiny, tmp_pat
 
 def test_ray_sweep_matches_the_local_one(tiny, tmp_path):
     ray = pytest.importorskip("ray")
-    from asap_dsl.backends.compare import compare
+    from asap_dsl.backends.compare.paired import compare
 
     kw = dict(rewards=("asap", "rho"), algos=("sac",), seeds=1, steps=300, episodes=40)
     local = compare([str(tiny)], out=str(tmp_path / "local"), workers=1, **kw)

@@ -1,4 +1,4 @@
-"""The CasADi minimum-time oracle (asap_dsl.backends.oracle): closed forms, DC motor, replay,
+"""The CasADi minimum-time oracle (asap_dsl.backends.oracle.solver): closed forms, DC motor, replay,
 obstacles, unreachable goals, unsupported inputs and the command."""
 
 from __future__ import annotations
@@ -15,7 +15,7 @@ import pytest
 
 import asap_dsl
 from asap_dsl.backends import oracle as O
-from asap_dsl.backends.oracle_cli import add_oracle_arguments
+from asap_dsl.cli.oracle import add_oracle_arguments
 from asap_dsl.dynamics import numpy_step, zero_order_hold
 
 SPECS = Path(__file__).resolve().parents[1] / "specs"
@@ -439,7 +439,7 @@ def test_tighten_takes_the_min_and_every_sequence_replays():
 
 
 def test_progress_is_reported_as_states_finish_and_shown_on_a_terminal():
-    from asap_dsl.backends.oracle_cli import _Progress
+    from asap_dsl.cli.oracle import _Progress
 
     prog = asap_dsl.load(SPECS / "dc_motor.asap")
     for workers in (1, 2):

@@ -48,7 +48,7 @@ def test_each_task_draws_from_its_own_box_and_the_others_from_the_systems():
 
 
 def test_the_oracle_and_evaluation_use_the_tasks_box():
-    from asap_dsl.backends.oracle import run
+    from asap_dsl.backends.oracle.solver import run
 
     prog = asap_dsl.loads(PENDULUM)
     rep = run(prog, "stabilise", episodes=6, workers=1)

@@ -247,7 +247,7 @@ def test_sigterm_checkpoints_and_resume_continues_the_step_count(tiny, tmp_path)
 
 
 def test_validation_states_are_not_the_evaluation_states(tiny):
-    from asap_dsl.backends.config import VALIDATION_SEED, resolve_config
+    from asap_dsl.backends.rl.config import VALIDATION_SEED, resolve_config
     from asap_dsl.sampling import EVAL_SEED, evaluation_states
 
     prog = asap_dsl.load(tiny)
@@ -259,8 +259,8 @@ def test_validation_states_are_not_the_evaluation_states(tiny):
 
 
 def test_settings_precedence_flag_over_block_over_preset(tiny):
-    from asap_dsl.backends.config import resolve_config
-    from asap_dsl.backends.presets import get_preset
+    from asap_dsl.backends.rl.config import resolve_config
+    from asap_dsl.backends.rl.presets import get_preset
 
     text = TINY.replace("tolerances 20, 10, 5", "tolerances 20, 10, 5\n  train { algo = td3, steps = 5000, "
                                                 "learning_rate = 0.002 }")

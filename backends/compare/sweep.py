@@ -63,7 +63,7 @@ def plan(specs: Sequence[str], tasks: Optional[Sequence[str]], rewards: Sequence
 
 
 def _config(job: Job, prog):
-    from .config import resolve_config
+    from ..rl.config import resolve_config
 
     return resolve_config(prog, job.task, algo=job.algo, reward=job.reward, steps=job.steps, seed=job.seed,
                           preset=job.preset)
@@ -113,7 +113,7 @@ def run_job(job: Job, runs_dir: str, threads: int = 1) -> dict:
 
     import asap_dsl
 
-    from .training import train
+    from ..rl.training import train
 
     if threads > 0:
         torch.set_num_threads(threads)

@@ -1,7 +1,7 @@
 """The oracle's analysis of the dynamics and its lower bounds on the horizon: which systems are
 linear, and the smallest N that a sound test does not exclude (a support-function test for
 linear dynamics, interval reachability for non-linear ones). A part of
-:class:`asap_dsl.backends.oracle.Oracle`, whose state it shares."""
+:class:`asap_dsl.backends.oracle.solver.Oracle`, whose state it shares."""
 
 from __future__ import annotations
 

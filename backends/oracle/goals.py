@@ -1,6 +1,6 @@
 """What the oracle can solve: ``asap`` and ``avoid`` in a normal form over timed literals.
 
-Used by :mod:`asap_dsl.backends.oracle`; the normal form is explained below.
+Used by :mod:`asap_dsl.backends.oracle.solver`; the normal form is explained below.
 """
 
 from __future__ import annotations

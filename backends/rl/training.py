@@ -1,7 +1,7 @@
 """Training runs: ``asap_dsl.train`` and ``asapc train``.
 
 A run trains one task of a spec with stable-baselines3, validates the policy periodically on
-initial states of its own seed (:data:`~asap_dsl.backends.config.VALIDATION_SEED`, never the
+initial states of its own seed (:data:`~asap_dsl.backends.rl.config.VALIDATION_SEED`, never the
 evaluation seed) and keeps the best model, writes curves (CSV and TensorBoard), checkpoints the
 model, replay buffer and random state periodically and on Ctrl-C / SIGTERM, and finally evaluates
 the best model on the seeded evaluation states. ``resume=True`` continues a checkpoint with the
@@ -229,7 +229,7 @@ class _Session:
         beside the validation rates; the oracle is never computed during training)."""
         from asap_dsl.sampling import EVAL_SEED
 
-        from .oracle_cache import load as load_cached
+        from ..oracle.cache import load as load_cached
 
         hit = load_cached(self.prog.source, self.cfg.task, EVAL_SEED, self.cfg.eval_episodes)
         return None if hit is None else {T: hit.ceiling(T)["rate"] for T in self.tolerances}
@@ -357,7 +357,7 @@ def train(spec: Union[str, Path, Program], task: Optional[str] = None, *, algo: 
     """Train ``task`` of a spec and evaluate the best model; returns a :class:`TrainResult`.
 
     Precedence of settings: these arguments, then the task's ``train { ... }`` block, then the
-    preset (``default`` or ``paper``; :mod:`asap_dsl.backends.presets`). ``out`` is the run
+    preset (``default`` or ``paper``; :mod:`asap_dsl.backends.rl.presets`). ``out`` is the run
     directory (default ``runs/<spec>-<task>-<algo>-<reward>-s<seed>``). An existing run is never
     replaced unless ``force``; ``resume`` continues its checkpoint (with ``steps``, a new total).
     Ctrl-C or SIGTERM stop the run after a checkpoint: the result's status is ``interrupted``.

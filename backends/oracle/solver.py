@@ -12,8 +12,8 @@ reaches ``asap`` at step N, with ``avoid`` false and the state inside the state 
 
 How
 ---
-(The lower bounds on N are in :mod:`asap_dsl.backends.oracle_bounds`, the normal form of ``asap``
-in :mod:`asap_dsl.backends.oracle_goals`, the results in :mod:`asap_dsl.backends.oracle_results`.)
+(The lower bounds on N are in :mod:`asap_dsl.backends.oracle.bounds`, the normal form of ``asap``
+in :mod:`asap_dsl.backends.oracle.goals`, the results in :mod:`asap_dsl.backends.oracle.results`.)
 
 * One NLP per (N, disjunct of ``asap`` in disjunctive normal form), built once with CasADi
   (multiple shooting: the states at steps 1..N are variables tied by ``x_k = step(x_{k-1},
@@ -80,9 +80,9 @@ from asap_dsl.expr import casadi_namespace, compile_function, degree
 from asap_dsl.sampling import EVAL_SEED, task_states
 from asap_dsl.stl import ir, offline
 
-from .oracle_bounds import HorizonBounds
-from .oracle_goals import OracleUnsupported, _dnf, _flatten_and, _literals, _normal
-from .oracle_results import OracleReport, StateResult
+from .bounds import HorizonBounds
+from .goals import OracleUnsupported, _dnf, _flatten_and, _literals, _normal
+from .results import OracleReport, StateResult
 
 #: Margin by which the goal is shrunk and ``avoid`` / the state space are kept clear in the NLP.
 MARGIN = 1e-6

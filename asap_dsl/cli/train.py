@@ -52,7 +52,7 @@ def _tolerances(text: str) -> list[int]:
 
 
 def add_train_arguments(p: argparse.ArgumentParser) -> None:
-    from .presets import ALGORITHMS, PRESETS
+    from asap_dsl.backends.rl.presets import ALGORITHMS, PRESETS
 
     p.add_argument("file", metavar="FILE", help="the .asap spec")
     p.add_argument("--task", help="the task to train (default: the only task of the file)")
@@ -165,8 +165,8 @@ def train_command(args: argparse.Namespace, out: Optional[TextIO] = None, err: O
     import asap_dsl
     from asap_dsl.runs import RunError
 
-    from .config import ConfigError
-    from .training import train
+    from asap_dsl.backends.rl.config import ConfigError
+    from asap_dsl.backends.rl.training import train
 
     from asap_dsl.cli import EMPTY_TASK
 
@@ -212,7 +212,7 @@ def eval_command(args: argparse.Namespace, out: Optional[TextIO] = None, err: Op
     import asap_dsl
     from asap_dsl.runs import RunError
 
-    from .evaluation import evaluate
+    from asap_dsl.backends.rl.evaluation import evaluate
 
     out, err = out or sys.stdout, err or sys.stderr
     try:

@@ -13,12 +13,12 @@ import os
 import sys
 from typing import Optional, Sequence
 
-from . import __version__
-from .diagnostics import SHOWN, Diagnostic, SpecError, format_report, printable, shorten, span_text
-from .limits import LIMITS
-from .program import Program, analyse, loads, read_source
-from .runs import json_safe
-from .stl import ir
+from .. import __version__
+from ..diagnostics import SHOWN, Diagnostic, SpecError, format_report, printable, shorten, span_text
+from ..limits import LIMITS
+from ..program import Program, analyse, loads, read_source
+from ..runs import json_safe
+from ..stl import ir
 
 
 # ---------------------------------------------------------------------------------------- lint
@@ -69,12 +69,12 @@ def cmd_lint(args: argparse.Namespace) -> int:
 def _deep_checks(prog: Program, args: argparse.Namespace) -> tuple[list[Diagnostic], list[tuple[str, str]]]:
     """``lint --deep``: sample initial states and ask the oracle whether the deadline is feasible.
     Returns the diagnostics and the tasks it could not check, each with the reason."""
-    from .diagnostics import make
+    from asap_dsl.diagnostics import make
 
     if prog.system.kind == "simulator":
         why = f"system {prog.system.name} is a black-box simulator: the oracle needs known dynamics (ode or map)"
         return [], [(name, why) for name in prog.tasks]
-    from .backends.oracle import deadline_infeasible
+    from asap_dsl.backends.oracle.solver import deadline_infeasible
 
     out, skipped = [], []
     for name in prog.tasks:
@@ -299,7 +299,7 @@ def build_parser() -> argparse.ArgumentParser:
     show.add_argument("--format", choices=("text", "json"), default="text")
     show.set_defaults(func=cmd_show)
 
-    from .backends import oracle_cli, train_cli
+    from asap_dsl.cli import oracle as oracle_cli, train as train_cli
 
     train = sub.add_parser("train", help="train a policy for a task (stable-baselines3) and evaluate it")
     train_cli.add_train_arguments(train)
@@ -309,7 +309,7 @@ def build_parser() -> argparse.ArgumentParser:
     train_cli.add_eval_arguments(evaluate)
     evaluate.set_defaults(func=train_cli.eval_command)
 
-    from .backends import compare_cli
+    from asap_dsl.cli import compare as compare_cli
 
     compare = sub.add_parser("compare", help="train what is missing, evaluate every run on the same states and "
                              "write a report (Markdown and HTML) beside the oracle's ceiling")
@@ -425,10 +425,3 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
         return 70
     return 0
 
-
-if __name__ == "__main__":  # pragma: no cover
-    # `python -m asap_dsl.cli` runs this file as __main__: call the package's own module, so that
-    # its exception classes are the ones the subcommands import (not a second copy).
-    from asap_dsl.cli import main as _main
-
-    sys.exit(_main())

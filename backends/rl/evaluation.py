@@ -229,7 +229,7 @@ def evaluate(run: Union[str, Path], *, episodes: int = 1000, tolerances: Optiona
     seconds = time.perf_counter() - start
     ceiling = None
     if oracle != "off":
-        from .oracle_cache import oracle_for
+        from ..oracle.cache import oracle_for
 
         ceiling = oracle_for(prog, cfg.task, seed, int(episodes), compute=oracle == "auto", workers=workers)
     ev = summarise(result, method=f"{cfg.algo} ({cfg.reward} reward, {cfg.preset} preset, seed {cfg.seed})",

@@ -24,7 +24,7 @@ def _names(text: str) -> list[str]:
 def add_compare_arguments(p: argparse.ArgumentParser) -> None:
     from asap_dsl.cli import episodes_int
 
-    from .train_cli import _positive_int, _steps
+    from asap_dsl.cli.train import _positive_int, _steps
 
     p.add_argument("files", nargs="+", metavar="FILE", help="the .asap specs")
     p.add_argument("--tasks", type=_names, help="comma-separated tasks (default: every task of each file)")
@@ -99,10 +99,10 @@ def compare_command(args: argparse.Namespace, out: Optional[TextIO] = None, err:
     import asap_dsl
     from asap_dsl.cli import available_cores, check_workers
 
-    from .compare import compare
-    from .presets import ALGORITHMS, PRESETS
-    from .report import markdown
-    from .sweep import SweepInterrupted, plan
+    from asap_dsl.backends.compare.paired import compare
+    from asap_dsl.backends.rl.presets import ALGORITHMS, PRESETS
+    from asap_dsl.backends.compare.report import markdown
+    from asap_dsl.backends.compare.sweep import SweepInterrupted, plan
 
     out, err = out or sys.stdout, err or sys.stderr
 
@@ -120,7 +120,7 @@ def compare_command(args: argparse.Namespace, out: Optional[TextIO] = None, err:
     check_workers(workers, args.force_workers)
     try:
         jobs = plan(args.files, args.tasks, args.rewards, args.algos, args.seeds, args.preset, args.steps)
-        from .sweep import _config
+        from asap_dsl.backends.compare.sweep import _config
 
         progs = {spec: asap_dsl.load(spec) for spec in {j.spec for j in jobs}}
         for j in jobs:  # every reward and setting checked before anything trains

@@ -1,4 +1,4 @@
-"""``asap_dsl.backends.compare.compare`` / ``asapc compare``: a sweep of training runs, every run and
+"""``asap_dsl.backends.compare.paired.compare`` / ``asapc compare``: a sweep of training runs, every run and
 every non-RL method judged on the same seeded states (paired), beside the oracle's ceiling, and
 the report that shows it (:mod:`.report`, :mod:`.plots`).
 """
@@ -37,7 +37,7 @@ class CompareResult:
 def _baseline(prog, task: str, kind: str, states: np.ndarray, oracle, cache: Path) -> Optional[dict]:
     """The greedy controller's or the oracle replay's evaluation on the seeded states (cached)."""
     from .controllers import GreedyController, OracleController
-    from .evaluation import summarise
+    from ..rl.evaluation import summarise
 
     path = cache / f"{spec_hash(prog.source)[:16]}-{task}-{kind}-n{len(states)}.json"
     if path.is_file():
@@ -71,7 +71,7 @@ def _run_evaluation(result: dict, episodes: int, oracle) -> dict:
 
     ev = result["evaluation"]
     if not (ev.get("episodes") == episodes and ev.get("seed") == EVAL_SEED and "per_state" in ev):
-        from .evaluation import evaluate
+        from ..rl.evaluation import evaluate
 
         ev = json.loads(json.dumps(json_safe(evaluate(result["run_dir"], episodes=episodes, oracle="cache",
                                                       write=False).to_dict())))
@@ -84,7 +84,7 @@ def _run_evaluation(result: dict, episodes: int, oracle) -> dict:
 def _examples(prog, task: str, result: dict, oracle, n: int = 4) -> Optional[dict]:
     """Robustness of ``asap`` along ``n`` example episodes: the run's policy and the oracle's."""
     from .controllers import OracleController
-    from .evaluation import load_run
+    from ..rl.evaluation import load_run
 
     loaded = load_run(result["run_dir"])
     tm = prog.task(task).model
@@ -115,12 +115,12 @@ def compare(specs: Sequence[str], *, tasks: Optional[Sequence[str]] = None,
             oracle_workers: Optional[int] = None) -> CompareResult:
     """Train what is missing, evaluate everything on the same states, write the report.
 
-    Raises :class:`~asap_dsl.backends.sweep.SweepInterrupted` when stopped (the finished runs stay;
+    Raises :class:`~asap_dsl.backends.compare.sweep.SweepInterrupted` when stopped (the finished runs stay;
     the same call continues).
     """
     import asap_dsl
 
-    from .oracle_cache import oracle_for
+    from ..oracle.cache import oracle_for
 
     start = time.perf_counter()
     out_dir = Path(out)

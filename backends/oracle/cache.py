@@ -67,7 +67,7 @@ def load(source: str, task: str, seed: int, episodes: int) -> Optional[CachedOra
 
 
 def store(source: str, report) -> Path:
-    """Store an :class:`~asap_dsl.backends.oracle.OracleReport` computed on the seeded states."""
+    """Store an :class:`~asap_dsl.backends.oracle.solver.OracleReport` computed on the seeded states."""
     path = cache_path(source, report.task, report.seed, len(report.results))
     atomic_write_json(path, report.to_dict(with_states=True, with_actions=True))
     return path
@@ -80,7 +80,7 @@ def oracle_for(prog, task: str, seed: int, episodes: int, compute: bool = True,
     hit = load(prog.source, task, seed, episodes)
     if hit is not None or not compute or prog.system.kind == "simulator":
         return hit
-    from .oracle import OracleUnsupported, run
+    from .solver import OracleUnsupported, run
 
     if workers is None:
         from asap_dsl.cli import available_cores

@@ -15,7 +15,7 @@ import sys
 import time
 from typing import Optional, TextIO
 
-from asap_dsl.backends.oracle import STATE_TIME_LIMIT
+from asap_dsl.backends.oracle.solver import STATE_TIME_LIMIT
 from asap_dsl.cli import episodes_int, positive_amount, positive_int, seed_int
 from asap_dsl.sampling import EVAL_SEED
 
@@ -114,8 +114,8 @@ def oracle_command(args: argparse.Namespace, out: Optional[TextIO] = None, err: 
     1 on a spec error or when no task could be (each unsupported task is named, with the
     operator that stops it), 2 on a misused flag (an unknown or empty ``--task`` included)."""
     import asap_dsl
-    from asap_dsl.backends.oracle import OracleUnsupported, run, tighten
-    from asap_dsl.backends.oracle_cache import store
+    from asap_dsl.backends.oracle.solver import OracleUnsupported, run, tighten
+    from asap_dsl.backends.oracle.cache import store
     from asap_dsl.cli import EMPTY_TASK, available_cores, check_workers, usage_error
 
     out = out or sys.stdout
@@ -164,7 +164,7 @@ def oracle_command(args: argparse.Namespace, out: Optional[TextIO] = None, err: 
     return 0 if reports else 1
 
 
-def main(argv: Optional[list[str]] = None) -> int:  # for `python -m asap_dsl.backends.oracle_cli`
+def main(argv: Optional[list[str]] = None) -> int:  # for `python -m asap_dsl.cli.oracle`
     parser = argparse.ArgumentParser(prog="asapc oracle", description="minimum-time oracle (CasADi + IPOPT)")
     add_oracle_arguments(parser)
     return oracle_command(parser.parse_args(argv))
