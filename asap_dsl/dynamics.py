@@ -21,15 +21,27 @@ from .expr import casadi_namespace, compile_function
 from .model import SystemModel
 
 
-def affine_parts(system: SystemModel) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """``(A, B, c)`` with ``f(x, u) = A x + B u + c``, read off the (checked linear) equations."""
-    n, m = system.n_state, system.n_action
-    f = system.rhs
+def affine_probe(f: Callable[[np.ndarray, np.ndarray], np.ndarray], n: int,
+                 m: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``(A, B, c)`` with ``f(x, u) = A x + B u + c``, read off ``f`` at zero and at the unit vectors.
+
+    :param f: a batched map ``f(states [1, n], actions [1, m]) -> values [1, k]``, affine in both
+        (not checked: the caller knows it from the equations' degree).
+    :param n: the number of states.
+    :param m: the number of actions (0: ``B`` is ``[k, 0]``).
+    :return: ``A [k, n]``, ``B [k, m]``, ``c [k]``.
+    """
     zero_x, zero_u = np.zeros((1, n)), np.zeros((1, m))
     c = f(zero_x, zero_u)[0]
-    A = np.stack([f(np.eye(n)[i: i + 1], zero_u)[0] - c for i in range(n)], axis=1)
-    B = np.stack([f(zero_x, np.eye(m)[j: j + 1])[0] - c for j in range(m)], axis=1) if m else np.zeros((n, 0))
+    k = c.shape[0]
+    A = np.stack([f(np.eye(n)[i: i + 1], zero_u)[0] - c for i in range(n)], axis=1) if n else np.zeros((k, 0))
+    B = np.stack([f(zero_x, np.eye(m)[j: j + 1])[0] - c for j in range(m)], axis=1) if m else np.zeros((k, 0))
     return A, B, c
+
+
+def affine_parts(system: SystemModel) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``(A, B, c)`` with ``f(x, u) = A x + B u + c``, read off the (checked linear) equations."""
+    return affine_probe(system.rhs, system.n_state, system.n_action)
 
 
 @functools.lru_cache(maxsize=64)

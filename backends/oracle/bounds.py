@@ -1,63 +1,82 @@
 """The oracle's analysis of the dynamics and its lower bounds on the horizon: which systems are
 linear, and the smallest N that a sound test does not exclude (a support-function test for
-linear dynamics, interval reachability for non-linear ones). A part of
-:class:`asap_dsl.backends.oracle.solver.Oracle`, whose state it shares."""
+linear dynamics, interval reachability for non-linear ones). :class:`HorizonBounds` is one part of
+:class:`asap_dsl.backends.oracle.search.Oracle`, which holds one."""
 
 from __future__ import annotations
 
 import math
 import time
+from typing import Callable, Optional, Sequence
 
 import numpy as np
 
 from asap_dsl import ast
 from asap_dsl.diagnostics import Span
+from asap_dsl.dynamics import affine_probe
 from asap_dsl.expr import INTERVAL, compile_function, degree
 from asap_dsl.intervals import Interval
+
+__all__ = ["INTERVAL_SLACK", "HorizonBounds", "coords_linear", "is_linear"]
 
 #: Relative widening of the interval enclosure per step (covers floating-point rounding).
 INTERVAL_SLACK = 1e-9
 
 
+def is_linear(system) -> bool:
+    """Whether the one-step map of ``system`` (an ``ode`` or ``map``) is affine in state and action:
+    an exact (zero-order hold) integrator, or equations of degree at most 1."""
+    if system.kind == "ode" and system.integrator.method == "exact":
+        return True
+    return all(degree(e, system.symbols) <= 1 for e in system.equations)
+
+
+def coords_linear(system, region) -> bool:
+    """Whether every coordinate of ``region`` (a region of the program) is linear in the state."""
+    return all(degree(ast.Name(c, Span()), system.symbols) <= 1 for c in region.coords)
+
+
 class HorizonBounds:
-    """Linearity and lower bounds on the horizon (mixed into the Oracle)."""
+    """Lower bounds on the horizon of one task: the smallest N that a sound test does not exclude.
 
-    # ------------------------------------------------------------------ analysis
-    def _is_linear(self) -> bool:
-        s = self.system
-        if s.kind == "ode" and s.integrator.method == "exact":
-            return True
-        return all(degree(e, s.symbols) <= 1 for e in s.equations)
+    :param system: the system (``ode`` or ``map``).
+    :param regions: the program's regions by name.
+    :param regions_now: per alternative of ``asap`` (at the deadline), the regions it must be
+        inside at step N itself (:attr:`asap_dsl.backends.oracle.goals.Goals.regions_now`).
+    :param deadline: the task's deadline; a bound of ``deadline + 1`` means out of reach.
+    :param step: the simulator's one-step map (:func:`asap_dsl.dynamics.numpy_step`).
+    :param interval_bound: use interval reachability for non-linear dynamics (else the bound is 0).
+    """
 
-    def _coords_linear(self, region: str) -> bool:
-        return all(degree(ast.Name(c, Span()), self.system.symbols) <= 1 for c in self.regions[region].coords)
-
-    def _affine_step(self):
-        """``(A, B, c)`` of the (linear) one-step map, probed through the simulator's step."""
-        n, m = self.n, self.m
-        f = self.step_np
-        c = f(np.zeros((1, n)), np.zeros((1, m)))[0]
-        A = np.stack([f(np.eye(n)[i:i + 1], np.zeros((1, m)))[0] - c for i in range(n)], axis=1)
-        B = np.stack([f(np.zeros((1, n)), np.eye(m)[j:j + 1])[0] - c for j in range(m)], axis=1)
-        return A, B, c
+    def __init__(self, system, regions: dict, regions_now: Sequence[tuple[str, ...]], deadline: int,
+                 step: Callable[[np.ndarray, np.ndarray], np.ndarray], interval_bound: bool = True):
+        self.system = system
+        self.regions = regions
+        self.regions_now = list(regions_now)
+        self.deadline = int(deadline)
+        self.interval_bound = bool(interval_bound)
+        self.n, self.m = system.n_state, system.n_action
+        self.linear = is_linear(system)
+        #: ``(A, B, c)`` of the (linear) one-step map, probed through the simulator's step.
+        self.affine = affine_probe(step, self.n, self.m) if self.linear else None
+        self._interval_fns: Optional[tuple] = None
 
     def _coord_affine(self, region: str):
         """``(P, p)`` with region values ``v = P x + p`` (linear coordinates only)."""
-        vals = self.regions[region].values
-        p = vals(np.zeros((1, self.n)))[0]
-        P = np.stack([vals(np.eye(self.n)[i:i + 1])[0] - p for i in range(self.n)], axis=1)
+        values = self.regions[region].values
+        P, _, p = affine_probe(lambda x, u: values(x), self.n, 0)
         return P, p
 
     def lower_bound(self, x0: np.ndarray, until: float = math.inf) -> int:
         """The smallest N not excluded by a sound test: the support-function test for linear
         dynamics, interval reachability for non-linear ones (0 when disabled). At the clock time
         ``until`` (``time.perf_counter``) the test stops where it is: still a lower bound."""
-        if not self.goal_now:
+        if not self.regions_now:
             return 0
         if not self.linear:
             return self.interval_lower_bound(x0, until) if self.interval_bound else 0
-        A, B, c = self._affine
-        affine = {r: self._coord_affine(r) for conj in self.goal_now for r, pos in conj if pos}
+        A, B, c = self.affine
+        affine = {r: self._coord_affine(r) for conj in self.regions_now for r in conj}
         free = np.asarray(x0, float)
         gens: list[np.ndarray] = []  # B, A B, A^2 B, ... (A^j B multiplies u_{N-1-j})
         Aj_B = B.copy()
@@ -68,14 +87,14 @@ class HorizonBounds:
                 free = A @ free + c
                 gens.append(Aj_B)
                 Aj_B = A @ Aj_B
-            for conj in self.goal_now:
-                if all(self._literal_possible(r, pos, affine.get(r), free, gens) for r, pos in conj):
+            for conj in self.regions_now:
+                if all(self._inside_possible(r, affine[r], free, gens) for r in conj):
                     return N
         return self.deadline + 1
 
-    def _literal_possible(self, region: str, positive: bool, aff, free, gens) -> bool:
-        if not positive:
-            return True  # no bound from "outside a region"
+    def _inside_possible(self, region: str, aff, free, gens) -> bool:
+        """False only if the reachable set of step N is separated from ``region`` (support function
+        along the direction from the free response to the region)."""
         P, p = aff
         R = self.regions[region]
         y = P @ free + p
@@ -93,7 +112,8 @@ class HorizonBounds:
         e = diff / np.linalg.norm(diff)
         d = P.T @ e
         g = np.stack([G.T @ d for G in gens])  # [N, m]
-        reach = float(np.sum(np.maximum(g * self.ulow, g * self.uhigh)))
+        s = self.system
+        reach = float(np.sum(np.maximum(g * s.action_low, g * s.action_high)))
         return gap <= reach + 1e-9 * (1 + abs(gap))
 
     # ------------------------------------------------------------------ interval bound
@@ -102,7 +122,7 @@ class HorizonBounds:
             s = self.system
             rhs = compile_function(s.equations, s.symbols, INTERVAL)
             coords = {r: compile_function([ast.Name(c, Span()) for c in self.regions[r].coords], s.symbols, INTERVAL)
-                      for conj in self.goal_now for r, pos in conj if pos}
+                      for conj in self.regions_now for r in conj}
             self._interval_fns = (rhs, coords)
         return self._interval_fns
 
@@ -129,11 +149,9 @@ class HorizonBounds:
     def _goal_possible(self, S: list) -> bool:
         """False only if no point of the box ``S`` satisfies any disjunct of ``asap``."""
         coords = self._interval_setup()[1]
-        for conj in self.goal_now:
+        for conj in self.regions_now:
             ok = True
-            for region, pos in conj:
-                if not pos:
-                    continue  # no bound from "outside a region"
+            for region in conj:
                 R = self.regions[region]
                 v = [Interval.of(c) for c in coords[region](S, ())]
                 if R.kind == "ball":
@@ -159,7 +177,8 @@ class HorizonBounds:
         sequences, states kept inside the state space at steps 1..N, as the task requires) can
         meet ``asap``; ``deadline + 1`` when it cannot up to the deadline. Sound: the enclosure
         contains every admissible trajectory's state, widened each step for rounding."""
-        A = [Interval(float(lo), float(hi)) for lo, hi in zip(self.ulow, self.uhigh)]
+        s = self.system
+        A = [Interval(float(lo), float(hi)) for lo, hi in zip(s.action_low, s.action_high)]
         S = [Interval(float(v), float(v)) for v in x0]
         try:
             for N in range(1, self.deadline + 1):
@@ -167,7 +186,7 @@ class HorizonBounds:
                     return N
                 S = self._interval_step(S, A)
                 out = []
-                for iv, lo, hi in zip(S, self.low, self.high):
+                for iv, lo, hi in zip(S, s.state_low, s.state_high):
                     if math.isnan(iv.lo) or math.isnan(iv.hi):
                         return N  # lost the enclosure: no bound from here on
                     w = INTERVAL_SLACK * (1.0 + max(abs(iv.lo), abs(iv.hi)))
