@@ -128,16 +128,8 @@ class _Walker(LetWalker):
                 return _UNKNOWN, False
         return None
 
-    def _children(self, e) -> list:
-        if isinstance(e, ast.Name):
-            return [self.sym.lets[e.id]]
-        if isinstance(e, ast.Unary):
-            return [e.arg]
-        if isinstance(e, ast.Binary):
-            return [e.left, e.right]
-        if isinstance(e, ast.Call):
-            return list(e.args)
-        return []
+    def _not_arithmetic(self, e) -> list:
+        return []  # no enclosure: _combine makes it unknown
 
     def _report(self, span: Span, found: tuple[str, bool]) -> None:
         key = (span.line, span.column, span.end_line, span.end_column)

@@ -14,6 +14,7 @@ Constants are folded to numbers at compile time. Nothing is parsed or interprete
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 from types import SimpleNamespace
@@ -33,18 +34,11 @@ FUNCTION_ARITY: dict[str, Optional[int]] = {
 BUILTIN_CONSTANTS = {"pi": math.pi, "e": math.e}
 
 
-def _np_min(*xs):
-    out = xs[0]
-    for x in xs[1:]:
-        out = np.minimum(out, x)
-    return out
-
-
-def _np_max(*xs):
-    out = xs[0]
-    for x in xs[1:]:
-        out = np.maximum(out, x)
-    return out
+def _folded(pairwise: Callable) -> Callable:
+    """``min``/``max`` of one or more arguments from their two-argument form, left to right."""
+    def fold(*xs):
+        return functools.reduce(pairwise, xs)
+    return fold
 
 
 def _np_norm(*xs):
@@ -54,7 +48,7 @@ def _np_norm(*xs):
 NUMPY = SimpleNamespace(
     sin=np.sin, cos=np.cos, tan=np.tan, asin=np.arcsin, acos=np.arccos, atan=np.arctan,
     atan2=np.arctan2, sinh=np.sinh, cosh=np.cosh, tanh=np.tanh, exp=np.exp, log=np.log,
-    sqrt=np.sqrt, abs=np.abs, min=_np_min, max=_np_max, norm=_np_norm, pow=np.power,
+    sqrt=np.sqrt, abs=np.abs, min=_folded(np.minimum), max=_folded(np.maximum), norm=_np_norm, pow=np.power,
 )
 
 INTERVAL = SimpleNamespace(**intervals.FUNCTIONS, pow=lambda a, b: intervals.Interval.of(a) ** b)
@@ -63,22 +57,10 @@ INTERVAL = SimpleNamespace(**intervals.FUNCTIONS, pow=lambda a, b: intervals.Int
 def casadi_namespace() -> SimpleNamespace:
     import casadi as ca  # imported only when the oracle asks for it
 
-    def cmin(*xs):
-        out = xs[0]
-        for x in xs[1:]:
-            out = ca.fmin(out, x)
-        return out
-
-    def cmax(*xs):
-        out = xs[0]
-        for x in xs[1:]:
-            out = ca.fmax(out, x)
-        return out
-
     return SimpleNamespace(
         sin=ca.sin, cos=ca.cos, tan=ca.tan, asin=ca.asin, acos=ca.acos, atan=ca.atan,
         atan2=ca.atan2, sinh=ca.sinh, cosh=ca.cosh, tanh=ca.tanh, exp=ca.exp, log=ca.log,
-        sqrt=ca.sqrt, abs=ca.fabs, min=cmin, max=cmax,
+        sqrt=ca.sqrt, abs=ca.fabs, min=_folded(ca.fmin), max=_folded(ca.fmax),
         norm=lambda *xs: ca.sqrt(sum(x * x for x in xs)), pow=lambda a, b: a ** b,
     )
 
@@ -101,9 +83,26 @@ class LetWalker:
     """A post-order walk of an expression with an explicit stack (its depth is the user's), in
     which a let is walked once, the first time it is met: subclasses give ``_leaf(node)`` (a
     value, or None for a node with children), ``_children(node)`` and ``_combine(node, values)``,
-    and record a let's value in ``self.lets`` when combining its Name."""
+    and record a let's value in ``self.lets`` when combining its Name. ``_children`` is that of
+    an arithmetic expression (a let's child is its body); ``_not_arithmetic(node)`` says what
+    another node has (by default: it is an error)."""
 
     lets: dict
+    sym: Symbols
+
+    def _children(self, e: ast.Expr) -> list[ast.Expr]:
+        if isinstance(e, ast.Name):  # a let
+            return [self.sym.lets[e.id]]
+        if isinstance(e, ast.Unary):
+            return [e.arg]
+        if isinstance(e, ast.Binary):
+            return [e.left, e.right]
+        if isinstance(e, ast.Call):
+            return list(e.args)
+        return self._not_arithmetic(e)
+
+    def _not_arithmetic(self, e: ast.Expr) -> list[ast.Expr]:
+        raise TypeError(f"not an arithmetic expression: {type(e).__name__}")
 
     def walk(self, root: ast.Expr):
         done: list = []               # values of finished nodes, in post-order
@@ -166,17 +165,6 @@ class _Gen(LetWalker):
                 raise KeyError(n)
             return None  # a let not emitted yet: its body first
         return None
-
-    def _children(self, e: ast.Expr) -> list[ast.Expr]:
-        if isinstance(e, ast.Name):  # a let
-            return [self.sym.lets[e.id]]
-        if isinstance(e, ast.Unary):
-            return [e.arg]
-        if isinstance(e, ast.Binary):
-            return [e.left, e.right]
-        if isinstance(e, ast.Call):
-            return list(e.args)
-        raise TypeError(f"not an arithmetic expression: {type(e).__name__}")
 
     def _combine(self, e: ast.Expr, args: list[str]) -> str:
         if isinstance(e, ast.Name):

@@ -80,71 +80,74 @@ class Not:
 
 
 @dataclass(frozen=True)
-class And:
+class _Pair:
+    """The fields of the binary Boolean operators (each class stays distinct: equality and
+    ``isinstance`` tell ``And`` from ``Or``)."""
+
     left: "Formula"
     right: "Formula"
 
 
 @dataclass(frozen=True)
-class Or:
-    left: "Formula"
-    right: "Formula"
+class And(_Pair):
+    pass
 
 
 @dataclass(frozen=True)
-class Implies:
-    left: "Formula"
-    right: "Formula"
+class Or(_Pair):
+    pass
 
 
 @dataclass(frozen=True)
-class Always:
+class Implies(_Pair):
+    pass
+
+
+@dataclass(frozen=True)
+class _Window:
+    """The fields of the unary temporal operators: a window and one argument."""
+
+    interval: Interval
+    arg: "Formula"
+
+
+@dataclass(frozen=True)
+class Always(_Window):
     """Future: minimum over ``[t + lo, t + hi]``."""
 
-    interval: Interval
-    arg: "Formula"
-
 
 @dataclass(frozen=True)
-class Eventually:
+class Eventually(_Window):
     """Future: maximum over ``[t + lo, t + hi]``."""
 
-    interval: Interval
-    arg: "Formula"
-
 
 @dataclass(frozen=True)
-class Historically:
+class Historically(_Window):
     """Past: minimum over ``[t - hi, t - lo]``."""
 
-    interval: Interval
-    arg: "Formula"
-
 
 @dataclass(frozen=True)
-class Once:
+class Once(_Window):
     """Past: maximum over ``[t - hi, t - lo]``."""
 
+
+@dataclass(frozen=True)
+class _Between:
+    """The fields of the binary temporal operators: a window and two arguments."""
+
     interval: Interval
-    arg: "Formula"
+    left: "Formula"
+    right: "Formula"
 
 
 @dataclass(frozen=True)
-class Until:
+class Until(_Between):
     """Future: ``left`` holds until ``right`` holds at some ``t' in [t + lo, t + hi]``."""
 
-    interval: Interval
-    left: "Formula"
-    right: "Formula"
-
 
 @dataclass(frozen=True)
-class Since:
+class Since(_Between):
     """Past: ``right`` held at some ``t' in [t - hi, t - lo]`` and ``left`` ever since."""
-
-    interval: Interval
-    left: "Formula"
-    right: "Formula"
 
 
 Formula = Union[Atom, Const, Not, And, Or, Implies, Always, Eventually, Historically, Once, Until, Since]
@@ -342,3 +345,21 @@ def cap_past_windows(node: Formula, steps: int) -> Formula:
     if isinstance(node, UNARY_TEMPORAL):
         return type(node)(iv, cap_past_windows(node.arg, steps))
     return type(node)(iv, cap_past_windows(node.left, steps), cap_past_windows(node.right, steps))
+
+
+def since_unbounded_form(node: Since) -> Formula:
+    """``node`` over the unbounded strict since only, as the online monitors evaluate it::
+
+        φ S[a,b] ψ  =  H[0,a-1] φ  and  O[a,a]( O[0,b-a] ψ  and  φ S ψ )
+
+    (the first conjunct left out for ``a = 0``, ``O[0,b-a] ψ`` for ``b = inf``). ``node`` itself
+    when it already is ``φ S[0, inf) ψ``."""
+    lo, hi = node.interval.lo, node.interval.hi
+    if lo == 0 and hi is None:
+        return node
+    core: Formula = Since(Interval(0, None), node.left, node.right)
+    if hi is not None:
+        core = And(Once(Interval(0, hi - lo), node.right), core)
+    if lo > 0:
+        core = And(Historically(Interval(0, lo - 1), node.left), Once(Interval(lo, lo), core))
+    return core

@@ -74,7 +74,7 @@ import numpy as np
 
 from . import ir
 
-__all__ = ["Monitor", "PrefixMonitor", "monitor_for"]
+__all__ = ["Monitor", "MonitorValues", "PrefixMonitor", "monitor_for"]
 
 _INF = np.inf
 
@@ -169,8 +169,6 @@ def _commit(state: np.ndarray, new: np.ndarray, mask) -> None:
 
 
 class _Op:
-    stateless = True
-
     def __init__(self, ck: _Clock):
         self.out = np.empty(ck.N)
 
@@ -248,8 +246,6 @@ class _ImpliesOp(_BinOp):
 
 class _PastUnbounded(_Op):
     """op over the child's values at steps [0, t - lo] of each entry (running min/max)."""
-
-    stateless = False
 
     def __init__(self, kid, lo, op, ident, ck):
         super().__init__(ck)
@@ -352,8 +348,6 @@ class _PastBounded(_Op):
 class _SinceUnbounded(_Op):
     """Strict unbounded since: S(t) = max(ψ(t), min(φ(t), S(t-1))), S(-1) = bottom."""
 
-    stateless = False
-
     def __init__(self, left, right, ck):
         super().__init__(ck)
         self.phi, self.psi = left.out, right.out
@@ -394,8 +388,6 @@ class _Graph:
         self.keep: list = []  # rewritten nodes kept alive (ids stay unique)
         self.outputs = [self._compile(r) for r in roots]
         work = [op for op in self.ops if not isinstance(op, _ConstOp)]
-        self.fast = [op.fast for op in work]
-        self.slow = [op.slow for op in work]
         # Atoms depend on the states only: they can run first, or be loaded with precomputed values
         # (``step_and_restart``); ``*_rest`` are the other operators, in topological order.
         self.atoms = [op for op in work if isinstance(op, _AtomOp)]
@@ -438,17 +430,9 @@ class _Graph:
                 return self._add(_PastUnbounded(kid, lo, op, ident, ck))
             return self._add(_PastBounded(kid, lo, hi, op, ident, ck))
         if isinstance(node, ir.Since):
-            lo, hi = node.interval.lo, node.interval.hi
-            if lo == 0 and hi is None:
+            core = ir.since_unbounded_form(node)
+            if core is node:
                 return self._add(_SinceUnbounded(self._compile(node.left), self._compile(node.right), ck))
-            core = ir.Since(ir.Interval(0, None), node.left, node.right)
-            if hi is not None:
-                core = ir.And(ir.Once(ir.Interval(0, hi - lo), node.right), core)
-            if lo > 0:
-                core = ir.And(
-                    ir.Historically(ir.Interval(0, lo - 1), node.left),
-                    ir.Once(ir.Interval(lo, lo), core),
-                )
             self.keep.append(core)
             return self._compile(core)
         if isinstance(node, ir.FUTURE_OPERATORS):
@@ -464,7 +448,29 @@ class _Graph:
 # --------------------------------------------------------------------------------------------
 
 
-class _Base:
+class MonitorValues:
+    """What every online monitor shows after an update (the batched monitors here and the
+    batch-1 :class:`asap_dsl.stl.scalar.ScalarMonitor`): ``_rob``, ``_sat`` and ``_track_sat`` are
+    set by the monitor."""
+
+    _rob: np.ndarray
+    _sat: np.ndarray
+    _track_sat: bool
+
+    @property
+    def robustness(self) -> np.ndarray:
+        """The value returned by the last ``update``."""
+        return self._rob
+
+    @property
+    def satisfied(self) -> np.ndarray:
+        """The Boolean semantics at the newest step (exact, not the sign of the robustness)."""
+        if not self._track_sat:
+            raise ValueError("this monitor was built with satisfaction=False")
+        return self._sat
+
+
+class _Base(MonitorValues):
     def __init__(self, batch: int, satisfaction: bool, n_state: Optional[int]):
         if not isinstance(batch, (int, np.integer)) or batch < 1:
             raise ValueError(f"batch must be a positive integer; got {batch!r}")
@@ -479,18 +485,6 @@ class _Base:
     def t(self) -> np.ndarray:
         """Per-entry step index of the newest state (-1 before an entry's first update)."""
         return self._clock.t[: self.batch].copy()
-
-    @property
-    def robustness(self) -> np.ndarray:
-        """The value returned by the last ``update``."""
-        return self._rob
-
-    @property
-    def satisfied(self) -> np.ndarray:
-        """The Boolean semantics at the newest step (exact, not the sign of the robustness)."""
-        if not self._track_sat:
-            raise ValueError("this monitor was built with satisfaction=False")
-        return self._sat
 
     def _check_mask(self, mask, what: str):
         if mask is None:

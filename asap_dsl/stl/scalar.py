@@ -25,12 +25,13 @@ import numpy as np
 
 from ..expr import ScalarForm
 from . import ir
+from .online import MonitorValues
 
 _INF = math.inf
 _F64 = np.dtype(np.float64)
 
 
-class ScalarMonitor:
+class ScalarMonitor(MonitorValues):
     """Online monitor of a causal formula over one trace (see the module docstring)."""
 
     batch = 1
@@ -58,15 +59,6 @@ class ScalarMonitor:
     def t(self) -> np.ndarray:
         return np.array([self._t])
 
-    @property
-    def robustness(self) -> np.ndarray:
-        return self._rob
-
-    @property
-    def satisfied(self) -> np.ndarray:
-        if not self._track_sat:
-            raise ValueError("this monitor was built with satisfaction=False")
-        return self._sat
 
     def reset(self, mask=None) -> None:
         if mask is not None and not _flag(mask, "reset"):
@@ -168,21 +160,16 @@ class ScalarMonitor:
             self._resets.append(reset)
             return i
         if isinstance(node, ir.Since):
-            lo, hi = node.interval.lo, node.interval.hi
-            if lo == 0 and hi is None:
-                a, b = self._compile(node.left), self._compile(node.right)
-                i = self._slot()
-                step, reset = _since_step(a, b, i, R, S, sat)
-                self._steps.append(step)
-                self._resets.append(reset)
-                return i
-            core = ir.Since(ir.Interval(0, None), node.left, node.right)
-            if hi is not None:
-                core = ir.And(ir.Once(ir.Interval(0, hi - lo), node.right), core)
-            if lo > 0:
-                core = ir.And(ir.Historically(ir.Interval(0, lo - 1), node.left), ir.Once(ir.Interval(lo, lo), core))
-            self._keep.append(core)
-            return self._compile(core)
+            core = ir.since_unbounded_form(node)
+            if core is not node:
+                self._keep.append(core)
+                return self._compile(core)
+            a, b = self._compile(node.left), self._compile(node.right)
+            i = self._slot()
+            step, reset = _since_step(a, b, i, R, S, sat)
+            self._steps.append(step)
+            self._resets.append(reset)
+            return i
         raise TypeError(f"not a causal formula node: {node!r}")
 
 
@@ -280,39 +267,9 @@ def _window_step(every: bool, interval: ir.Interval, a: int, i: int, R: list, S:
             val.clear()
         running[0] = running[1] = empty
 
-    # The common case, one lane: no loop over lanes. Two copies (min and max) rather than one
-    # with a comparison operator passed in: an extra call per element would cost a third more.
-    if not sat and lo == 0 and hi is not None:
+    if not sat and lo == 0 and hi is not None:  # the common case, one lane: no loop over lanes
         _, _, idx, val = lanes[0]
-        push, popv, popi, appi = val.append, val.pop, idx.pop, idx.append
-        left_v, left_i = val.popleft, idx.popleft
-
-        def step_min(t):
-            v = R[a]
-            while val and val[-1] >= v:
-                popv()
-                popi()
-            push(v)
-            appi(t)
-            first = t - hi
-            while idx[0] < first:
-                left_i()
-                left_v()
-            R[i] = val[0]
-
-        def step_max(t):
-            v = R[a]
-            while val and val[-1] <= v:
-                popv()
-                popi()
-            push(v)
-            appi(t)
-            first = t - hi
-            while idx[0] < first:
-                left_i()
-                left_v()
-            R[i] = val[0]
-        return (step_min if every else step_max), reset
+        return _ONE_LANE_WINDOW[every](R, a, i, hi, val, idx), reset
 
     def step(t):
         for lane, (X, delay, idx, val) in enumerate(lanes):
@@ -346,6 +303,39 @@ def _window_step(every: bool, interval: ir.Interval, a: int, i: int, R: list, S:
                 val.popleft()
             out[i] = val[0]
     return step, reset
+
+
+# The one-lane window step, min (historically) and max (once), generated from one text: the
+# comparison written into each rather than passed in (a call per element costs a third more).
+_ONE_LANE_SOURCE = """
+def make(R, a, i, hi, val, idx):
+    push, popv, popi, appi = val.append, val.pop, idx.pop, idx.append
+    left_v, left_i = val.popleft, idx.popleft
+
+    def step(t):
+        v = R[a]
+        while val and val[-1] {evict} v:
+            popv()
+            popi()
+        push(v)
+        appi(t)
+        first = t - hi
+        while idx[0] < first:
+            left_i()
+            left_v()
+        R[i] = val[0]
+    return step
+"""
+
+
+def _one_lane_factory(evict: str) -> Callable:
+    namespace: dict = {}
+    exec(compile(_ONE_LANE_SOURCE.format(evict=evict), "<scalar window>", "exec"), namespace)  # noqa: S102
+    return namespace["make"]
+
+
+#: ``every`` (historically: evict larger values) -> factory; else once (evict smaller ones).
+_ONE_LANE_WINDOW = {True: _one_lane_factory(">="), False: _one_lane_factory("<=")}
 
 
 def _since_step(a: int, b: int, i: int, R: list, S: list, sat: bool):

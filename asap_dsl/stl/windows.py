@@ -31,29 +31,27 @@ __all__ = ["future_window", "past_window", "shift_left", "shift_right", "until_u
 
 def shift_left(x: np.ndarray, k: int, ident) -> np.ndarray:
     """``y[..., t] = x[..., t + k]``, ``ident`` past the end."""
-    T = x.shape[-1]
-    if k == 0:
-        return x
-    out = np.empty_like(x)
-    if k >= T:
-        out[...] = ident
-        return out
-    out[..., : T - k] = x[..., k:]
-    out[..., T - k :] = ident
-    return out
+    return _shift(x, k, ident, forward=True)
 
 
 def shift_right(x: np.ndarray, k: int, ident) -> np.ndarray:
     """``y[..., t] = x[..., t - k]``, ``ident`` before the start."""
+    return _shift(x, k, ident, forward=False)
+
+
+def _shift(x: np.ndarray, k: int, ident, forward: bool) -> np.ndarray:
     T = x.shape[-1]
     if k == 0:
         return x
     out = np.empty_like(x)
     if k >= T:
         out[...] = ident
-        return out
-    out[..., k:] = x[..., : T - k]
-    out[..., :k] = ident
+    elif forward:
+        out[..., : T - k] = x[..., k:]
+        out[..., T - k :] = ident
+    else:
+        out[..., k:] = x[..., : T - k]
+        out[..., :k] = ident
     return out
 
 
