@@ -1,12 +1,21 @@
-"""What the parts of the checker share: the tables of settings, the kinds of names, the
-exception that leaves a broken part out, and small helpers (see :mod:`asap_dsl.checker`)."""
+"""What the parts of the checker share: the tables of settings, the kinds of names, the state
+of one check (:class:`CheckState`), the exception that leaves a broken part out, and small
+helpers (see :mod:`asap_dsl.checker`)."""
 
 from __future__ import annotations
 
-from typing import Callable, Iterable
+from dataclasses import dataclass, field
+from typing import Any, Callable, Iterable, Optional
+
+from . import ast
+from .diagnostics import Collector, Span
+from .model import ActionVar, FormulaModel, RegionModel, StateVar
 
 ALGORITHMS = ("sac", "td3", "ddpg", "ppo", "a2c")
-REWARDS = {"asap": (), "rho": ("window",), "distance": ("lambda_t", "lambda_o", "base")}
+#: The reward kinds, each with its settings and their defaults (None: no default; a ``rho``
+#: without a window is over the whole episode). The language's table: specs and ``--reward``.
+REWARDS: dict[str, dict[str, Optional[float]]] = {
+    "asap": {}, "rho": {"window": None}, "distance": {"lambda_t": 1.0, "lambda_o": 1.0, "base": 0.0}}
 INTEGRATORS = {"rk4": ("substeps",), "euler": ("substeps",), "exact": ()}
 TRAIN_SETTINGS = {
     "algo": "str", "steps": "int", "seed": "int", "preset": "str", "n_envs": "int",
@@ -26,6 +35,45 @@ CONST, STATE, ACTION, LET, REGION, FORMULA, TASK, SYSTEM = (
 
 class _Unresolved(Exception):
     """A sub-expression had errors (already reported); the enclosing item is left out."""
+
+
+@dataclass
+class CheckState:
+    """What the checker knows so far about one module, shared by its parts: where problems go
+    (``diag``), every declared name and its kind, the names used, and the checked constants,
+    states, actions, lets, dt, regions and formulas. Each part reads and adds what it checks."""
+
+    module: ast.Module
+    source: str
+    diag: Collector
+    kinds: dict[str, tuple[str, Span]] = field(default_factory=dict)
+    used: set[str] = field(default_factory=set)
+    consts: dict[str, float] = field(default_factory=dict)
+    const_failed: set[str] = field(default_factory=set)  # constants (and dt) whose value had errors
+    dt: Optional[float] = None
+    states: list[StateVar] = field(default_factory=list)
+    actions: list[ActionVar] = field(default_factory=list)
+    lets: dict[str, ast.Expr] = field(default_factory=dict)
+    regions: dict[str, RegionModel] = field(default_factory=dict)
+    formulas: dict[str, FormulaModel] = field(default_factory=dict)
+
+    def declared_here(self, name: str, span: Span) -> bool:
+        """True if the declaration of ``name`` at ``span`` is the one that counts (not a repeat)."""
+        return self.kinds.get(name, (None, None))[1] == span
+
+
+def each(fn: Callable[[Any], Any], items: Iterable) -> list:
+    """``fn`` on every item, each reporting its own problems: the results, or :class:`_Unresolved`
+    once all have been tried if any failed (so that one bad part does not hide the others)."""
+    out, failed = [], False
+    for item in items:
+        try:
+            out.append(fn(item))
+        except _Unresolved:
+            failed = True
+    if failed:
+        raise _Unresolved
+    return out
 
 
 def dependency_order(names: list[str], deps: Callable[[str], Iterable[str]]) -> tuple[list[str], list[str]]:

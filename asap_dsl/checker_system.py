@@ -1,5 +1,5 @@
 """The checks of the system (constants, dt, states, actions, lets, dynamics, integrator) and of
-the regions: a part of :class:`asap_dsl.checker.Checker`, whose state it shares."""
+the regions: a part of :class:`asap_dsl.checker.Checker`, over its shared state."""
 
 from __future__ import annotations
 
@@ -7,84 +7,43 @@ import math
 from typing import Optional
 
 from . import ast
-from .checker_common import (ACTION, CONST, FORMULA, INTEGRATORS, LET, REGION, STATE, SYSTEM, TASK, _a, _fmt,
-                             _Unresolved, dependency_order)
+from .checker_common import (ACTION, CONST, FORMULA, INTEGRATORS, LET, REGION, STATE, SYSTEM, TASK, CheckState, _a,
+                             _fmt, _Unresolved, dependency_order)
+from .checker_exprs import Numbers
 from .diagnostics import Span
 from .diagnostics import closest as _closest
-from .expr import compile_batched, interval_range, names_in
-from .intervals import Interval
+from .expr import compile_batched, names_in
 from .limits import LIMITS
 from .model import ActionVar, Integrator, RegionModel, StateVar, SystemModel
+from .rewards import FLOAT32_MAX
 
 
 class SystemChecks:
-    """The system and its regions (mixed into :class:`asap_dsl.checker.Checker`)."""
+    """The system and its regions: fills the state's constants, dt, states, actions, lets and
+    regions, and declares every name of the module."""
 
-    def region_bounds(self, region: RegionModel) -> tuple[float, float]:
-        # A state's interval is its space (looked up, so that a ball over n states costs O(n));
-        # a let's comes from interval analysis over the state box (built once).
-        spaces = {s.name: Interval(s.low, s.high) for s in self.states}
-        box = symbols = None
-        coords = []
-        for c in region.coords:
-            if c in spaces:
-                coords.append(spaces[c])
-                continue
-            if box is None:
-                symbols, box = self.symbols(), self.state_box()
-            coords.append(interval_range(ast.Name(c, Span()), symbols, box))
-        if region.kind == "ball":
-            dist = Interval(0.0, 0.0)
-            for iv, c in zip(coords, region.centre):
-                dist = dist + (iv - c) ** 2
-            lo, hi = math.sqrt(max(dist.lo, 0.0)), math.sqrt(dist.hi) if math.isfinite(dist.hi) else math.inf
-            return (region.radius - hi, region.radius - lo)
-        # Each side's margin min(v - a, b - v) is a tent over v, highest ((b - a) / 2) at the
-        # middle: its range over [v.lo, v.hi] is exact, and the box's is their minimum (exact
-        # when the coordinates are states; sound for lets). Never above the smallest half-width.
-        lows, highs = [], []
-        for iv, a, b in zip(coords, region.low, region.high):
-            tent = lambda v, a=a, b=b: min(v - a, b - v)  # noqa: E731
-            mid = (a + b) / 2
-            lows.append(min(tent(iv.lo), tent(iv.hi)))
-            highs.append((b - a) / 2 if iv.lo <= mid <= iv.hi else max(tent(iv.lo), tent(iv.hi)))
-        return (min(lows), min(highs))
-
-    def range_(self, r: ast.Range, what: str) -> tuple[float, float]:
-        values = []
-        errors = 0
-        for e in (r.lo, r.hi):
-            try:
-                values.append(self.constant(e, what))
-            except _Unresolved:
-                errors += 1
-        if errors:
-            raise _Unresolved
-        lo, hi = values
-        if lo > hi:
-            self.d.add("E105", f"{what} [{_fmt(lo)}, {_fmt(hi)}] has its lower bound above its upper bound", r.span,
-                       hint=f"write [{_fmt(hi)}, {_fmt(lo)}]")
-            raise _Unresolved
-        return lo, hi
+    def __init__(self, state: CheckState, numbers: Numbers):
+        self.s, self.n = state, numbers
+        self.d = state.diag
 
     def check_system(self) -> Optional[SystemModel]:
-        if not self.m.systems:
+        if not self.s.module.systems:
             self.d.add("E114", "the file declares no system", Span(1, 1, 1, 2),
                        hint="a spec starts with `system NAME { state ..., action ..., dt = ..., ode { ... } }`")
             return None
-        for extra in self.m.systems[1:]:
+        for extra in self.s.module.systems[1:]:
             self.d.add("E119", f"a file holds one system; '{extra.name}' is a second one", extra.name_span)
-        sys = self.m.systems[0]
-        self.declare(sys.name, SYSTEM, sys.name_span)
+        sys = self.s.module.systems[0]
+        self.n.declare(sys.name, SYSTEM, sys.name_span)
         # Declare every name first so that uses can say what a name is even out of order.
         for c in sys.consts:
-            self.declare(c.name, CONST, c.name_span)
+            self.n.declare(c.name, CONST, c.name_span)
         for s in sys.states:
-            self.declare(s.name, STATE, s.name_span)
+            self.n.declare(s.name, STATE, s.name_span)
         for a in sys.actions:
-            self.declare(a.name, ACTION, a.name_span)
+            self.n.declare(a.name, ACTION, a.name_span)
         for lt in sys.lets:
-            self.declare(lt.name, LET, lt.name_span)
+            self.n.declare(lt.name, LET, lt.name_span)
 
         if not sys.dt:
             self.d.add("E114", f"system '{sys.name}' has no `dt = ...` (seconds per step)", sys.name_span)
@@ -94,80 +53,83 @@ class SystemChecks:
         # constants (a constant may use those before it, dt included).
         steps: list = [(c.span.line, c.span.column, c) for c in sys.consts]
         if sys.dt:
-            self.declare("dt", CONST, sys.dt[0].span)
-            self.used.add("dt")  # never reported unused: it is the system's step
+            self.n.declare("dt", CONST, sys.dt[0].span)
+            self.s.used.add("dt")  # never reported unused: it is the system's step
             steps.append((sys.dt[0].span.line, sys.dt[0].span.column, sys.dt[0]))
         for _, _, c in sorted(steps, key=lambda item: item[:2]):
             if not isinstance(c, ast.ConstDecl):
                 self.check_dt(c)
                 continue
-            if self.kinds.get(c.name, (None, None))[1] != c.name_span:
+            if not self.s.declared_here(c.name, c.name_span):
                 continue
             try:
-                self.consts[c.name] = self.constant(c.value, f"constant '{c.name}'")
+                self.s.consts[c.name] = self.n.constant(c.value, f"constant '{c.name}'")
             except _Unresolved:
-                self._const_failed.add(c.name)
+                self.s.const_failed.add(c.name)
 
         for s in sys.states:
-            if self.kinds.get(s.name, (None, None))[1] != s.name_span:
+            if not self.s.declared_here(s.name, s.name_span):
                 continue
             try:
-                lo, hi = self.range_(s.space, f"the state space of '{s.name}'")
+                lo, hi = self.n.range_(s.space, f"the state space of '{s.name}'")
                 if not lo < hi:
                     self.d.add("E117", f"the state space of '{s.name}' is empty or a single point", s.space.span)
                     raise _Unresolved
-                ilo, ihi = (lo, hi) if s.init is None else self.range_(s.init, f"the init range of '{s.name}'")
+                ilo, ihi = (lo, hi) if s.init is None else self.n.range_(s.init, f"the init range of '{s.name}'")
             except _Unresolved:
                 lo, hi, ilo, ihi = -math.inf, math.inf, 0.0, 0.0
-            self.states.append(StateVar(s.name, len(self.states), lo, hi, ilo, ihi, s.span, s.init.span if s.init else None))
+            self.s.states.append(StateVar(s.name, len(self.s.states), lo, hi, ilo, ihi, s.span, s.init.span if s.init else None))
         if not sys.states:
             self.d.add("E114", f"system '{sys.name}' declares no state", sys.name_span)
 
         for a in sys.actions:
-            if self.kinds.get(a.name, (None, None))[1] != a.name_span:
+            if not self.s.declared_here(a.name, a.name_span):
                 continue
             try:
-                lo, hi = self.range_(a.bounds, f"the bounds of action '{a.name}'")
+                lo, hi = self.n.range_(a.bounds, f"the bounds of action '{a.name}'")
                 if not (math.isfinite(lo) and math.isfinite(hi)):
                     self.d.add("E117", f"the bounds of action '{a.name}' must be finite", a.bounds.span)
+                elif not (abs(lo) <= FLOAT32_MAX and abs(hi) <= FLOAT32_MAX):  # beyond, the action space is ±inf
+                    self.d.add("E117", f"the bounds of action '{a.name}' must lie within ±3.4e38: an agent's actions "
+                               f"are float32, and [{_fmt(lo)}, {_fmt(hi)}] is not", a.bounds.span)
             except _Unresolved:
                 lo, hi = -1.0, 1.0
-            self.actions.append(ActionVar(a.name, len(self.actions), lo, hi, a.span))
+            self.s.actions.append(ActionVar(a.name, len(self.s.actions), lo, hi, a.span))
 
         # Lets: over states, constants and other lets (any order, no cycles).
-        let_decls = {lt.name: lt for lt in sys.lets if self.kinds.get(lt.name, (None, None))[1] == lt.name_span}
+        let_decls = {lt.name: lt for lt in sys.lets if self.s.declared_here(lt.name, lt.name_span)}
         order = self._let_order(let_decls)
         for name in order:
             lt = let_decls[name]
             try:
-                self.number(lt.value, (CONST, STATE, LET), f"let '{name}'")
-                self.lets[name] = lt.value
+                self.n.number(lt.value, (CONST, STATE, LET), f"let '{name}'")
+                self.s.lets[name] = lt.value
             except _Unresolved:
                 pass
-        for name in self.lets:
-            self.check_domains([self.lets[name]], f"let '{name}'")
+        for name in self.s.lets:
+            self.n.check_domains([self.s.lets[name]], f"let '{name}'")
 
         kind, equations, simulator, dyn_span = self.check_dynamics(sys)
         integrator = self.check_integrator(sys, kind)
         if equations:
-            self.check_domains(equations, "the dynamics", actions=True)
-        if self.dt is None or kind is None:
+            self.n.check_domains(equations, "the dynamics", actions=True)
+        if self.s.dt is None or kind is None:
             return None
-        return SystemModel(sys.name, tuple(self.states), tuple(self.actions), dict(self.consts), dict(self.lets),
-                           self.dt, kind, equations, simulator, integrator, sys.span, dyn_span)
+        return SystemModel(sys.name, tuple(self.s.states), tuple(self.s.actions), dict(self.s.consts), dict(self.s.lets),
+                           self.s.dt, kind, equations, simulator, integrator, sys.span, dyn_span)
 
     def check_dt(self, e: ast.Expr) -> None:
         try:
-            dt = self.constant(e, "dt")
+            dt = self.n.constant(e, "dt")
         except _Unresolved:
-            self._const_failed.add("dt")
+            self.s.const_failed.add("dt")
             return
         if not dt > 0 or not math.isfinite(dt):
             self.d.add("E117", f"dt must be a positive number of seconds, not {_fmt(dt)}", e.span)
-            self._const_failed.add("dt")
+            self.s.const_failed.add("dt")
             return
-        self.dt = dt
-        self.consts["dt"] = dt
+        self.s.dt = dt
+        self.s.consts["dt"] = dt
 
     def _let_order(self, decls: dict[str, ast.LetDecl]) -> list[str]:
         order, cyclic = dependency_order(list(decls), lambda n: (m.id for m in names_in(decls[n].value) if m.id in decls))
@@ -189,25 +151,21 @@ class SystemChecks:
                 self.d.add("E117", f"simulator \"{dyn.target}\" is not a registered name or \"package.module:factory\"", dyn.span)
                 return None, (), None, dyn.span
             return "simulator", (), target, dyn.span
-        state_names = [s.name for s in self.states]
+        state_names = [s.name for s in self.s.states]
         given: dict[str, ast.Equation] = {}
+        first: dict[str, Span] = {}
         errors = 0
         prime = "'" if dyn.kind == "ode" else ""
-        known = set(state_names)  # looked up once per equation: a set, or 20,000 states cost seconds
+        known = dict.fromkeys(state_names)  # looked up once per equation: hashed, or 20,000 states cost seconds
         for eq in dyn.equations:
-            if eq.target not in known:
-                self.not_a_state(eq.target, eq.target_span, state_names, dyn.kind, "E110",
-                                 f"{dyn.kind} equations are for states")
+            if not self.n.state_once(eq.target, eq.target_span, known, first, dyn.kind, "E110",
+                                     f"{dyn.kind} equations are for states",
+                                     "E110", "has a second equation (the first is at line {line})"):
                 errors += 1
                 continue
-            if eq.target in given:
-                self.d.add("E110", f"state '{eq.target}' has a second equation (the first is at line {given[eq.target].span.line})",
-                           eq.target_span)
-                errors += 1
-                continue
-            given[eq.target] = eq
+            given[eq.target], first[eq.target] = eq, eq.span
             try:
-                self.number(eq.value, (CONST, STATE, ACTION, LET), f"the {dyn.kind} equation of '{eq.target}'")
+                self.n.number(eq.value, (CONST, STATE, ACTION, LET), f"the {dyn.kind} equation of '{eq.target}'")
             except _Unresolved:
                 errors += 1
         for s in state_names:
@@ -240,7 +198,7 @@ class SystemChecks:
                            hint=f"it takes {', '.join(INTEGRATORS[decl.method]) or 'no settings'}")
                 continue
             try:
-                v = self.constant(s.value, "substeps")
+                v = self.n.constant(s.value, "substeps")
             except _Unresolved:
                 continue
             if not float(v).is_integer() or v < 1:
@@ -255,34 +213,39 @@ class SystemChecks:
         return Integrator(decl.method, substeps if decl.method != "exact" else 1, decl.span)
 
     def check_regions(self) -> None:
-        for r in self.m.regions:
-            self.declare(r.name, REGION, r.name_span)
-        for f in self.m.formulas:
-            self.declare(f.name, FORMULA, f.name_span)
-        for t in self.m.tasks:
-            self.declare(t.name, TASK, t.name_span)
-        state_names = [s.name for s in self.states]
-        symbols = self.symbols()
-        for r in self.m.regions:
-            if self.kinds.get(r.name, (None, None))[1] != r.name_span:
+        for r in self.s.module.regions:
+            self.n.declare(r.name, REGION, r.name_span)
+        for f in self.s.module.formulas:
+            self.n.declare(f.name, FORMULA, f.name_span)
+        for t in self.s.module.tasks:
+            self.n.declare(t.name, TASK, t.name_span)
+        state_names = [s.name for s in self.s.states]
+        symbols = self.n.symbols()
+        for r in self.s.module.regions:
+            if not self.s.declared_here(r.name, r.name_span):
                 continue
             try:
                 model = self.region(r, state_names)
             except _Unresolved:
                 continue
             values = compile_batched([ast.Name(c, Span()) for c in model.coords], symbols)
-            self.regions[r.name] = RegionModel(model.name, model.kind, model.coords, model.centre, model.radius,
+            self.s.regions[r.name] = RegionModel(model.name, model.kind, model.coords, model.centre, model.radius,
                                                model.low, model.high, r.span, values)
 
-    def coordinate(self, name: str, span: Span) -> None:
-        kind = self.kinds.get(name, (None,))[0]
+    def coordinate(self, name: str, span: Span, coords: list[str], twice: str) -> None:
+        """Check that ``name`` can be a coordinate of a region (a state or a let) and is not one of
+        ``coords`` already (``twice`` says so); raises :class:`_Unresolved` if not."""
+        if name in coords:
+            self.d.add("E102", twice, span)
+            raise _Unresolved
+        kind = self.s.kinds.get(name, (None,))[0]
         if kind in (STATE, LET):
-            if kind == LET and name not in self.lets:
+            if kind == LET and name not in self.s.lets:
                 raise _Unresolved
-            self.used.add(name)
+            self.s.used.add(name)
             return
         if kind is None:
-            self.unknown(name, span, (STATE, LET))
+            self.n.unknown(name, span, (STATE, LET))
         else:
             self.d.add("E103", f"'{name}' is {_a(kind)}; a region is over states and lets", span)
         raise _Unresolved
@@ -295,14 +258,10 @@ class SystemChecks:
             centre: list[float] = []
             if shape.named:
                 for c in shape.centre:
-                    if c.name in coords:
-                        self.d.add("E102", f"'{c.name}' appears twice in the centre of region '{r.name}'", c.span)
-                        errors += 1
-                        continue
                     try:
-                        self.coordinate(c.name, c.span)
+                        self.coordinate(c.name, c.span, coords, f"'{c.name}' appears twice in the centre of region '{r.name}'")
                         coords.append(c.name)
-                        centre.append(self.constant(c.value, "a ball centre"))
+                        centre.append(self.n.constant(c.value, "a ball centre"))
                     except _Unresolved:
                         errors += 1
                 if not shape.centre:
@@ -316,12 +275,12 @@ class SystemChecks:
                     errors += 1
                 for c in shape.centre:
                     try:
-                        centre.append(self.constant(c, "a ball centre"))
+                        centre.append(self.n.constant(c, "a ball centre"))
                     except _Unresolved:
                         errors += 1
                 coords = list(state_names)
             try:
-                radius = self.constant(shape.radius, "a ball radius")
+                radius = self.n.constant(shape.radius, "a ball radius")
                 if not radius > 0:
                     self.d.add("E117", f"the radius of region '{r.name}' must be positive, not {_fmt(radius)}", shape.radius.span)
                     errors += 1
@@ -336,13 +295,9 @@ class SystemChecks:
             self.d.add("E104", f"box '{r.name}' bounds no variable", shape.span)
             raise _Unresolved
         for side in shape.sides:
-            if side.var in coords:
-                self.d.add("E102", f"'{side.var}' is bounded twice in box '{r.name}'", side.span)
-                errors += 1
-                continue
             try:
-                self.coordinate(side.var, side.span)
-                lo, hi = self.range_(side.bounds, f"the side '{side.var}' of box '{r.name}'")
+                self.coordinate(side.var, side.span, coords, f"'{side.var}' is bounded twice in box '{r.name}'")
+                lo, hi = self.n.range_(side.bounds, f"the side '{side.var}' of box '{r.name}'")
                 coords.append(side.var)
                 lows.append(lo)
                 highs.append(hi)

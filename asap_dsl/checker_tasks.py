@@ -1,5 +1,6 @@
-"""The checks of formula declarations and of tasks (clauses, initial boxes, rewards, observation,
-training settings): a part of :class:`asap_dsl.checker.Checker`, whose state it shares."""
+"""The checks of tasks (clauses, initial boxes, rewards, observation, training settings): a part
+of :class:`asap_dsl.checker.Checker`, over its shared state. :func:`reward_model` is also what
+checks a reward given on its own (``asapc train --reward``, :func:`asap_dsl.checker.check_reward`)."""
 
 from __future__ import annotations
 
@@ -7,36 +8,21 @@ import math
 from typing import Callable, Optional
 
 from . import ast
-from .checker_common import (ALGORITHMS, OBSERVE_ITEMS, REWARDS, TRAIN_SETTINGS, _fmt,
-                             _Unresolved, dependency_order)
+from .checker_common import (ALGORITHMS, OBSERVE_ITEMS, REWARDS, TRAIN_SETTINGS, CheckState, _fmt, _Unresolved)
+from .checker_exprs import Conditions, Numbers
 from .diagnostics import Span
 from .diagnostics import closest as _closest
-from .expr import nodes_in
 from .limits import LIMITS
-from .model import FormulaModel, RewardModel, TaskModel
+from .model import RewardModel, TaskModel
 from .stl import ir
 
 
 class TaskChecks:
-    """Formula declarations and tasks (mixed into :class:`asap_dsl.checker.Checker`)."""
+    """Tasks: each to a :class:`~asap_dsl.model.TaskModel`, or None where it has errors."""
 
-    def check_formulas(self) -> None:
-        # In dependency order, so that a formula's references are built before it and building
-        # one never recurses through a chain of formulas (which may be as long as the file).
-        decls = {f.name: f for f in self.m.formulas if self.kinds.get(f.name, (None, None))[1] == f.name_span}
-        order, cyclic = dependency_order(
-            list(decls), lambda n: (m.id for m in nodes_in(decls[n].body) if isinstance(m, ast.Name) and m.id in decls))
-        for name in cyclic:
-            self.d.add("E120", f"formula '{name}' is defined in terms of itself", decls[name].name_span)
-        ordered = set(order)
-        for name in decls:
-            if name not in ordered:  # on a cycle, or using one (reported there)
-                self._formula_ir[name] = None
-        for name in order:
-            f = decls[name]
-            node = self.formula_ir(f.name)
-            if node is not None:
-                self.formulas[f.name] = FormulaModel(f.name, node, f.span)
+    def __init__(self, state: CheckState, numbers: Numbers, conditions: Conditions):
+        self.s, self.n, self.c = state, numbers, conditions
+        self.d = state.diag
 
     def check_task(self, t: ast.TaskDecl) -> Optional[TaskModel]:
         clauses: dict[str, ast.Clause] = {}
@@ -61,9 +47,9 @@ class TaskChecks:
                 errors += 1
                 return default
 
-        asap = attempt(self.clause_condition, clauses["asap"], "asap") if "asap" in clauses else None
-        avoid = attempt(self.clause_condition, clauses["avoid"], "avoid") if "avoid" in clauses else None
-        deadline = attempt(self.positive_steps, clauses["deadline"].value, "the deadline") if "deadline" in clauses else None
+        asap = attempt(self.c.clause_condition, clauses["asap"], "asap") if "asap" in clauses else None
+        avoid = attempt(self.c.clause_condition, clauses["avoid"], "avoid") if "avoid" in clauses else None
+        deadline = attempt(self.n.positive_steps, clauses["deadline"].value, "the deadline") if "deadline" in clauses else None
         if deadline is not None and deadline > LIMITS.deadline_steps:
             # Every episode, evaluation and oracle horizon is this long: beyond it nothing finishes.
             self.d.add("E117", f"a deadline of {deadline:,} steps is more than {LIMITS.deadline_steps:,}",
@@ -73,17 +59,17 @@ class TaskChecks:
             deadline = None
         tolerances: tuple[int, ...] = (deadline,) if deadline else ()
         if "tolerances" in clauses:
-            tolerances = tuple(attempt(self.positive_steps, d, "a tolerance", default=0) for d in clauses["tolerances"].value)
+            tolerances = tuple(attempt(self.n.positive_steps, d, "a tolerance", default=0) for d in clauses["tolerances"].value)
         episode = (deadline, deadline) if deadline else (1, 1)
         if "episode" in clauses:
             lo_d, hi_d = clauses["episode"].value
-            lo = attempt(self.positive_steps, lo_d, "the shortest episode", default=1)
-            hi = attempt(self.positive_steps, hi_d, "the longest episode", default=1)
+            lo = attempt(self.n.positive_steps, lo_d, "the shortest episode", default=1)
+            hi = attempt(self.n.positive_steps, hi_d, "the longest episode", default=1)
             if lo and hi and lo > hi:
                 self.d.add("E105", f"the episode range {lo}..{hi} has its lower bound above its upper bound", clauses["episode"].span)
                 errors += 1
             episode = (lo or 1, hi or 1)
-        reward = attempt(self.reward, clauses["reward"].value, asap, avoid) if "reward" in clauses else RewardModel()
+        reward = attempt(reward_model, clauses["reward"].value, self.n) if "reward" in clauses else RewardModel()
         asap_regions = ir.positive_regions(asap) if asap is not None else ()
         if reward is not None and reward.kind == "distance" and asap is not None and not asap_regions:
             self.d.add("E117", "reward distance(...) measures the distance to the `asap` region, but `asap` names no region",
@@ -93,7 +79,7 @@ class TaskChecks:
         if "r_sat" in clauses:
             value = clauses["r_sat"].value
             if not (isinstance(value, ast.Name) and value.id == "auto"):
-                r_sat = attempt(self.finite_constant, value, "r_sat")
+                r_sat = attempt(self.n.finite_constant, value, "r_sat")
         observe = ("state",)
         if "observe" in clauses:
             observe = attempt(self.observe, clauses["observe"].value, default=("state",))
@@ -110,29 +96,24 @@ class TaskChecks:
     def task_init(self, box: ast.Box) -> tuple[tuple[float, ...], tuple[float, ...]]:
         """``init box(theta in [a, b], ...)``: the task's initial box, each named state's range
         replacing the system's (the others keep theirs), with the checks of a state's `init`."""
-        by_name = {s.name: s for s in self.states}
-        low = [s.init_low for s in self.states]
-        high = [s.init_high for s in self.states]
+        by_name = {s.name: s for s in self.s.states}
+        low = [s.init_low for s in self.s.states]
+        high = [s.init_high for s in self.s.states]
         seen: dict[str, Span] = {}
         errors = 0
         if not box.sides:
             self.d.add("E117", "`init box()` names no state", box.span, hint="write init box(x in [a, b], ...)")
             raise _Unresolved
         for side in box.sides:
-            state = by_name.get(side.var)
-            if state is None:
-                self.not_a_state(side.var, side.span, list(by_name), "the task's init box", "E103",
-                                 "an initial box is over states")
+            if not self.n.state_once(side.var, side.span, by_name, seen, "the task's init box", "E103",
+                                     "an initial box is over states",
+                                     "E102", "is given twice in the init box (first at line {line})"):
                 errors += 1
                 continue
-            if side.var in seen:
-                self.d.add("E102", f"state '{side.var}' is given twice in the init box (first at line {seen[side.var].line})",
-                           side.span)
-                errors += 1
-                continue
+            state = by_name[side.var]
             seen[side.var] = side.span
             try:
-                lo, hi = self.range_(side.bounds, f"the init range of '{side.var}'")
+                lo, hi = self.n.range_(side.bounds, f"the init range of '{side.var}'")
             except _Unresolved:
                 errors += 1
                 continue
@@ -150,43 +131,6 @@ class TaskChecks:
         if errors:
             raise _Unresolved
         return tuple(low), tuple(high)
-
-    def positive_steps(self, d: ast.Duration, what: str) -> int:
-        n = self.steps(d, what)
-        if n is None or n < 1:
-            self.d.add("E117", f"{what} must be at least one step", d.span)
-            raise _Unresolved
-        return n
-
-    def reward(self, syn: ast.RewardSyntax, asap, avoid) -> RewardModel:
-        if syn.kind not in REWARDS:
-            sug = _closest(syn.kind, REWARDS)
-            self.d.add("E117", f"unknown reward '{syn.kind}'", syn.span,
-                       hint=f"did you mean '{sug}'?" if sug else "choose asap, rho, rho(window = D) or distance(...)")
-            raise _Unresolved
-        params: dict[str, float] = {}
-        for s in syn.settings:
-            if s.name not in REWARDS[syn.kind]:
-                self.d.add("E117", f"reward {syn.kind} has no setting '{s.name}'", s.name_span,
-                           hint=f"it takes {', '.join(REWARDS[syn.kind]) or 'no settings'}")
-                raise _Unresolved
-            if s.name == "window":
-                if isinstance(s.value, ast.Duration):  # rho(window = 1s)
-                    params["window"] = self.positive_steps(s.value, "the reward window")
-                elif isinstance(s.value, ast.Number):
-                    params["window"] = self.positive_steps(ast.Duration(s.value.value, "steps", s.value.span), "the reward window")
-                else:
-                    params["window"] = self.constant(s.value, "the reward window")
-                    if not float(params["window"]).is_integer() or params["window"] < 1:
-                        self.d.add("E117", "the reward window must be a whole number of steps, at least 1", s.span)
-                        raise _Unresolved
-                    params["window"] = int(params["window"])
-            else:
-                params[s.name] = self.finite_constant(s.value, f"the reward setting {s.name}")
-        if syn.kind == "distance":
-            defaults = {"lambda_t": 1.0, "lambda_o": 1.0, "base": 0.0}
-            params = {**defaults, **params}
-        return RewardModel(syn.kind, params, syn.span)
 
     def observe(self, items) -> tuple[str, ...]:
         names = []
@@ -235,7 +179,7 @@ class TaskChecks:
                 errors += 1
                 continue
             try:
-                number = self.constant(value, f"the training setting {s.name}")
+                number = self.n.constant(value, f"the training setting {s.name}")
             except _Unresolved:
                 errors += 1
                 continue
@@ -249,3 +193,40 @@ class TaskChecks:
         if errors:
             raise _Unresolved
         return out
+
+
+def reward_model(syn: ast.RewardSyntax, numbers: Numbers) -> RewardModel:
+    """The reward ``syn`` names, its settings checked (a window in whole steps, at least one;
+    the others finite float32 numbers) and the defaults of :data:`REWARDS` filled in; problems
+    go to ``numbers``' diagnostics and raise :class:`_Unresolved`."""
+    d = numbers.d
+    if syn.kind not in REWARDS:
+        sug = _closest(syn.kind, REWARDS)
+        d.add("E117", f"unknown reward '{syn.kind}'", syn.span,
+              hint=f"did you mean '{sug}'?" if sug else "choose asap, rho, rho(window = D) or distance(...)")
+        raise _Unresolved
+    takes = REWARDS[syn.kind]
+    params: dict[str, float] = {}
+    for s in syn.settings:
+        if s.name not in takes:
+            d.add("E117", f"reward {syn.kind} has no setting '{s.name}'", s.name_span,
+                  hint=f"it takes {', '.join(takes) or 'no settings'}")
+            raise _Unresolved
+        if s.name == "window":
+            params["window"] = _window(s, numbers)
+        else:
+            params[s.name] = numbers.finite_constant(s.value, f"the reward setting {s.name}")
+    defaults = {k: v for k, v in takes.items() if v is not None}
+    return RewardModel(syn.kind, {**defaults, **params}, syn.span)
+
+
+def _window(s: ast.Setting, numbers: Numbers) -> int:
+    if isinstance(s.value, ast.Duration):  # rho(window = 1s)
+        return numbers.positive_steps(s.value, "the reward window")
+    if isinstance(s.value, ast.Number):
+        return numbers.positive_steps(ast.Duration(s.value.value, "steps", s.value.span), "the reward window")
+    window = numbers.constant(s.value, "the reward window")
+    if not float(window).is_integer() or window < 1:
+        numbers.d.add("E117", "the reward window must be a whole number of steps, at least 1", s.span)
+        raise _Unresolved
+    return int(window)
