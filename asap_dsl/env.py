@@ -23,6 +23,8 @@ Episodes follow the paper's Algorithm 1 and 2 (docs/language.md, "Tasks"):
 ``make_vec_env`` is an SB3 ``VecEnv`` that steps all entries at once in numpy, with autoreset of
 finished entries (their ``info`` holds ``terminal_observation`` and ``TimeLimit.truncated``) and
 per-entry episode lengths. ``step_arrays`` returns the raw arrays without building info dicts.
+Both are views of one :class:`EnvCore` (the batched episodes: one ``step``, one place that
+builds ``info``), which :class:`asap_dsl.rollout.Evaluator` drives too.
 """
 
 from __future__ import annotations
@@ -39,7 +41,7 @@ from .rewards import FLOAT32_MAX, FormulaTracker, make_reward
 from .sampling import initial_states
 from .sim import build_simulator
 
-__all__ = ["AsapEnv", "AsapVecEnv", "END_REASONS", "make_env", "make_vec_env", "register_envs"]
+__all__ = ["AsapEnv", "AsapVecEnv", "END_REASONS", "EnvCore", "infos", "make_env", "make_vec_env", "register_envs"]
 
 END_REASONS = (None, "avoid", "out_of_bounds", "non_finite", "time_limit")
 _AVOID, _OOB, _NONFINITE, _TIME = 1, 2, 3, 4
@@ -55,8 +57,23 @@ def _program(prog_or_path):
     raise TypeError(f"expected a Program or the path of a .asap file; got {type(prog_or_path).__name__}")
 
 
-class _Core:
-    """The batched episode machinery shared by the single and the vector environment."""
+class EnvCore:
+    """The batched episodes of one task: ``batch`` entries stepped together in numpy.
+
+    Shared by :class:`AsapEnv` (a batch of one), :class:`AsapVecEnv` and
+    :class:`asap_dsl.rollout.Evaluator`. :meth:`reset_all` or :meth:`start` begins every entry's
+    episode, :meth:`step` advances them all (with ``autoreset``, finished entries restart at
+    once); after either, ``states``, ``t``, ``k`` (episode lengths), ``t_reach``, ``end`` and the
+    trackers ``asap``/``avoid`` hold the batch's state, and :meth:`infos` the ``info`` of each
+    entry for the last reset or step (before any autoreset).
+
+    :param program: a checked :class:`asap_dsl.Program`
+    :param task: the task's name (None: the only task); KeyError with a suggestion if unknown
+    :param batch: the number of entries, at least 1
+    :param reward: None (the task's own), a text such as ``"rho(window = 5)"``, or a RewardModel
+    :param autoreset: restart finished entries within :meth:`step` (a vector env's contract)
+    :param failure_reward: the reward of a failure step instead of the reward's floor
+    """
 
     def __init__(self, program, task: Optional[str], batch: int, reward: Any, autoreset: bool,
                  failure_reward: Optional[float] = None):
@@ -67,14 +84,14 @@ class _Core:
         if isinstance(batch, bool) or not float(batch).is_integer() or batch < 1:
             raise ValueError(f"num_envs must be a whole number, at least 1; got {batch!r}")
         self.B, self.n, self.autoreset = int(batch), sysm.n_state, autoreset
-        self.reward = make_reward(tm, program.regions, self.n, self.B, reward, autoreset, failure_reward)
+        self.reward = make_reward(tm, program.regions, self.n, self.B, reward, failure_reward, dt=sysm.dt)
         self.sim = build_simulator(sysm, self.B, program.file)
         # No episode (training: at most kmax steps; evaluation: the deadline) is longer than the
         # deadline: windows beyond it are capped, so monitors never hold more than an episode.
         from .stl.ir import cap_past_windows
 
-        self.asap = FormulaTracker(cap_past_windows(tm.asap, tm.deadline), self.B, self.n, autoreset=autoreset)
-        self.avoid = (FormulaTracker(cap_past_windows(tm.avoid, tm.deadline), self.B, self.n, autoreset=autoreset)
+        self.asap = FormulaTracker(cap_past_windows(tm.asap, tm.deadline), self.B, self.n)
+        self.avoid = (FormulaTracker(cap_past_windows(tm.avoid, tm.deadline), self.B, self.n)
                       if tm.avoid is not None else None)
         trackers = [self.asap] + ([self.avoid] if self.avoid else []) + self.reward.trackers
         self.trackers = trackers
@@ -106,6 +123,7 @@ class _Core:
         self.k = np.zeros(self.B, dtype=np.int64)
         self.t_reach = np.full(self.B, -1, dtype=np.int64)
         self.end = np.zeros(self.B, dtype=np.int64)
+        self._keep_info(np.zeros(self.B), np.zeros(self.B, dtype=bool))
 
     # ---- helpers -----------------------------------------------------------------------------
     def _finite_rho(self, rho: np.ndarray) -> np.ndarray:
@@ -113,6 +131,16 @@ class _Core:
         at the first steps) as the formula's bound, or the largest float where that is infinite."""
         return np.nan_to_num(rho, nan=0.0, posinf=self._rho_hi, neginf=self._rho_lo)
 
+
+    def _keep_info(self, rho: np.ndarray, sat: np.ndarray) -> None:
+        """What :func:`infos` reports for the reset or step just taken (kept apart from the live
+        arrays, which an autoreset changes): ρ of ``asap`` made finite, its satisfaction, and the
+        entries' ``t_reach``, ``end`` and ``t``."""
+        self.info_rho = self._finite_rho(rho)
+        self.info_sat = sat.copy()
+        self.info_t_reach = self.t_reach.copy()
+        self.info_end = self.end.copy()
+        self.info_t = self.t.copy()
 
     def _sample(self, m: int):
         s0 = initial_states(self.system, m, self.rng, self.tm.avoid, box=self.tm.init_box)
@@ -141,7 +169,7 @@ class _Core:
                            rtol=1e-9, atol=1e-9, equal_nan=True):
             raise self.sim._fail("reset did not set the states it was given (the protocol requires "
                                  "reset(states) to return those states)")
-        return full if mask is None else full
+        return full
 
     # ---- episodes ----------------------------------------------------------------------------
     def reset_all(self) -> np.ndarray:
@@ -159,6 +187,7 @@ class _Core:
         self.k[:] = k
         self.end[:] = 0
         self.t_reach[:] = np.where(self.asap.sat, 0, -1)
+        self._keep_info(self.asap.rob, self.asap.sat)
         return self.obs()
 
     def step(self, actions):
@@ -227,12 +256,7 @@ class _Core:
         self.states = safe
         self.end = end
         obs = self.obs()
-        # Info of the finished step (before any autoreset).
-        self.info_rho = self._finite_rho(asap_rob)
-        self.info_sat = asap_sat.copy()
-        self.info_t_reach = self.t_reach.copy()
-        self.info_end = end.copy()
-        self.info_t = self.t.copy()
+        self._keep_info(asap_rob, asap_sat)  # of the finished step (before any autoreset)
         final_obs = None
         if restart:
             final_obs = obs[done].copy()
@@ -249,10 +273,16 @@ class _Core:
         return obs, reward, failed, truncated, final_obs, done
 
 
-def _info(core: _Core, i: int) -> dict:
-    tr = int(core.info_t_reach[i])
-    return {"rho": float(core.info_rho[i]), "satisfied": bool(core.info_sat[i]), "t_reach": None if tr < 0 else tr,
-            "end_reason": END_REASONS[int(core.info_end[i])], "t": int(core.info_t[i])}
+def infos(core: EnvCore) -> list[dict]:
+    """One ``info`` dict per entry for the core's last reset or step (before any autoreset; the
+    module docstring says what each key means). Any core with ``EnvCore``'s ``info_*`` arrays."""
+    return list(map(_info, core.info_rho.tolist(), core.info_sat.tolist(), core.info_t_reach.tolist(),
+                    core.info_end.tolist(), core.info_t.tolist()))
+
+
+def _info(rho: float, satisfied: bool, t_reach: int, end: int, t: int) -> dict:
+    return {"rho": rho, "satisfied": satisfied, "t_reach": None if t_reach < 0 else t_reach,
+            "end_reason": END_REASONS[end], "t": t}
 
 
 class AsapEnv(gym.Env):
@@ -263,7 +293,7 @@ class AsapEnv(gym.Env):
     def __init__(self, program, task: Optional[str] = None, reward: Any = None, seed: Optional[int] = None,
                  failure_reward: Optional[float] = None, render_mode: Optional[str] = None):
         super().__init__()
-        self.core = _Core(program, task, 1, reward, autoreset=False, failure_reward=failure_reward)
+        self.core = EnvCore(program, task, 1, reward, autoreset=False, failure_reward=failure_reward)
         self.program, self.task = program, self.core.task
         self.observation_space = self.core.observation_space
         self.action_space = self.core.action_space
@@ -277,15 +307,11 @@ class AsapEnv(gym.Env):
         super().reset(seed=seed)
         self.core.rng = self.np_random
         obs = self.core.reset_all()
-        c = self.core
-        tr = int(c.t_reach[0])
-        info = {"rho": float(c._finite_rho(c.asap.rob)[0]), "satisfied": bool(c.asap.sat[0]), "t_reach": None if tr < 0 else tr,
-                "end_reason": None, "t": 0}
-        return obs[0], info
+        return obs[0], infos(self.core)[0]
 
     def step(self, action):
         obs, r, term, trunc, _, _ = self.core.step(np.asarray(action, dtype=np.float64)[None])
-        return obs[0], float(r[0]), bool(term[0]), bool(trunc[0]), _info(self.core, 0)
+        return obs[0], float(r[0]), bool(term[0]), bool(trunc[0]), infos(self.core)[0]
 
 
 def _vec_base():
@@ -299,7 +325,7 @@ class AsapVecEnv(_vec_base()):
 
     def __init__(self, program, task: Optional[str] = None, num_envs: int = 1, seed: Optional[int] = None,
                  reward: Any = None, failure_reward: Optional[float] = None):
-        self.core = _Core(program, task, num_envs, reward, autoreset=True, failure_reward=failure_reward)
+        self.core = EnvCore(program, task, num_envs, reward, autoreset=True, failure_reward=failure_reward)
         self.render_mode = None
         super().__init__(int(num_envs), self.core.observation_space, self.core.action_space)
         self.program, self.task = program, self.core.task
@@ -312,10 +338,7 @@ class AsapVecEnv(_vec_base()):
             self.core.rng = np.random.default_rng(self._seeds[0])
         self._reset_seeds()
         obs = self.core.reset_all()
-        c = self.core
-        self.reset_infos = [{"rho": float(c.asap.rob[i]), "satisfied": bool(c.asap.sat[i]),
-                             "t_reach": None if c.t_reach[i] < 0 else 0, "end_reason": None, "t": 0}
-                            for i in range(self.num_envs)]
+        self.reset_infos = infos(self.core)
         return obs
 
     def step_async(self, actions) -> None:
@@ -329,17 +352,13 @@ class AsapVecEnv(_vec_base()):
 
     def step_wait(self):
         obs, r, term, trunc = self.step_arrays(self._actions)
-        c = self.core
-        rho, sat, trch, end, tt = (c.info_rho.tolist(), c.info_sat.tolist(), c.info_t_reach.tolist(),
-                                   c.info_end.tolist(), c.info_t.tolist())
-        infos = [{"rho": rho[i], "satisfied": sat[i], "t_reach": None if trch[i] < 0 else trch[i],
-                  "end_reason": END_REASONS[end[i]], "t": tt[i]} for i in range(self.num_envs)]
+        out = infos(self.core)
         done = self.last_done
         if done.any():
             for j, i in enumerate(np.flatnonzero(done)):
-                infos[i]["terminal_observation"] = self.last_final_obs[j]
-                infos[i]["TimeLimit.truncated"] = bool(trunc[i] and not term[i])
-        return obs, r, done.copy(), infos
+                out[i]["terminal_observation"] = self.last_final_obs[j]
+                out[i]["TimeLimit.truncated"] = bool(trunc[i] and not term[i])
+        return obs, r, done.copy(), out
 
     def close(self) -> None:
         pass
@@ -365,18 +384,38 @@ class AsapVecEnv(_vec_base()):
 
 
 def make_env(prog_or_path, task: Optional[str] = None, reward: Any = None, seed: Optional[int] = None, **kw) -> AsapEnv:
-    """A ``gymnasium.Env`` for ``task`` of a spec (a Program or a path).
+    """A ``gymnasium.Env`` for one task of a spec: one episode at a time, with the rules of the
+    module docstring.
 
-    ``reward``: None (the task's own), ``"asap"``, ``"rho"``, ``"rho(window = 5)"``,
-    ``"distance(lambda_t = 1, lambda_o = 1, base = 0)"``. ``seed`` seeds the first reset.
-    Keyword: ``failure_reward`` (a constant for the failure step instead of the reward's floor).
+    :param prog_or_path: a :class:`asap_dsl.Program`, or the path of a ``.asap`` file (loaded
+        with :func:`asap_dsl.load`; a broken spec raises :class:`asap_dsl.SpecError`)
+    :param task: the task's name; None for a spec with one task (KeyError, with the closest
+        name, for an unknown one)
+    :param reward: None for the task's own reward, or ``"asap"``, ``"rho"``,
+        ``"rho(window = 5)"``, ``"distance(lambda_t = 1, lambda_o = 1, base = 0)"`` (as the
+        ``reward`` clause writes it; ValueError, one sentence, for a bad one)
+    :param seed: seeds the first ``reset`` (later resets continue its random stream)
+    :param kw: ``failure_reward``, a constant for the failure step instead of the reward's
+        floor; ``render_mode`` (gymnasium's; nothing is rendered)
+    :return: the environment (observations float32, actions clipped to the action bounds)
     """
     return AsapEnv(_program(prog_or_path), task=task, reward=reward, seed=seed, **kw)
 
 
 def make_vec_env(prog_or_path, task: Optional[str] = None, num_envs: int = 1, seed: Optional[int] = None,
                  reward: Any = None, **kw) -> AsapVecEnv:
-    """A batched vector env (stable-baselines3 ``VecEnv``) of ``num_envs`` entries."""
+    """A stable-baselines3 ``VecEnv`` of ``num_envs`` episodes of one task, stepped together in
+    numpy; a finished entry restarts at once (its info holds ``terminal_observation`` and
+    ``TimeLimit.truncated``).
+
+    :param prog_or_path: a :class:`asap_dsl.Program`, or the path of a ``.asap`` file
+    :param task: the task's name; None for a spec with one task
+    :param num_envs: the number of entries, a whole number of at least 1
+    :param seed: seeds the initial states and episode lengths of every entry (None: fresh entropy)
+    :param reward: None for the task's own reward, or a reward as :func:`make_env` takes it
+    :param kw: ``failure_reward``, a constant for the failure step instead of the reward's floor
+    :return: the vector environment
+    """
     return AsapVecEnv(_program(prog_or_path), task=task, num_envs=num_envs, seed=seed, reward=reward, **kw)
 
 

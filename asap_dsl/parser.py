@@ -1,23 +1,24 @@
-"""Source text to AST: the Lark grammar, positioned syntax errors in plain words.
+"""Source text to AST: the Lark transformer that builds :mod:`asap_dsl.ast` nodes, and the
+entry points :func:`parse` (a file) and :func:`parse_reward` (a reward on its own).
 
-The grammar lives in ``grammar/asap.lark`` (shipped inside the package as
-``asap_dsl/grammar/asap.lark``); the LALR parser is built once per process.
+The grammar lives in ``grammar/asap.lark``; the parser is :mod:`asap_dsl.lark_parser`'s, built
+once per process; Lark's errors are put in plain words by :mod:`asap_dsl.syntax_errors`.
 """
 
 from __future__ import annotations
 
-import functools
-import re
-from importlib import resources
-from pathlib import Path
 from typing import Any, Optional
 
 import lark
-from lark import Token, Transformer, v_args
+from lark import Transformer, v_args
 
 from . import ast
 from .diagnostics import Collector, Diagnostic, Span, SpecError, make
+from .lark_parser import get_parser, keywords, token_span
 from .limits import LIMITS
+from .syntax_errors import syntax_diagnostic
+
+__all__ = ["get_parser", "keywords", "parse", "parse_reward"]
 
 _CANONICAL = {
     "->": "implies", "implies": "implies",
@@ -32,178 +33,6 @@ _CANONICAL = {
 }
 
 _TASK_CLAUSES = ("asap", "avoid", "deadline", "tolerances", "episode", "reward", "r_sat", "observe", "init", "train")
-
-# Plain words for the grammar's named terminals (punctuation and keywords print as themselves).
-_TERMINAL_WORDS = {
-    "NAME": "a name",
-    "NUMBER": "a number",
-    "DURATION": "a time such as 3s or 500ms",
-    "STRING": 'a string in double quotes',
-    "PRIME": "a prime (')",
-    "$END": "the end of the file",
-}
-
-
-def _grammar_text() -> str:
-    # Installed: the grammar ships inside the package. From a source checkout: grammar/asap.lark.
-    try:
-        return resources.files("asap_dsl").joinpath("grammar/asap.lark").read_text(encoding="utf-8")
-    except (FileNotFoundError, ModuleNotFoundError, NotADirectoryError):
-        here = Path(__file__).resolve().parent.parent / "grammar" / "asap.lark"
-        return here.read_text(encoding="utf-8")
-
-
-@functools.lru_cache(maxsize=None)
-def keywords() -> dict[str, str]:
-    """Reserved words of the language (every keyword of the grammar) -> their terminal names."""
-    return {t.pattern.value: t.name for t in _lark().terminals
-            if isinstance(t.pattern, lark.lexer.PatternStr) and t.pattern.value.isidentifier()}
-
-
-def _reserve_keywords(tok: Token) -> Token:
-    # The contextual lexer reads a keyword as a NAME wherever the keyword itself cannot stand
-    # (`const G = 9.81`, `state task in ...`). Keywords are reserved: give the token its keyword
-    # type back, so that the parser reports "'G' is a reserved word" instead of accepting a name
-    # that is unusable elsewhere.
-    kind = keywords().get(tok.value)
-    if kind is not None:
-        tok.type = kind
-    return tok
-
-
-@functools.lru_cache(maxsize=None)
-def _lark() -> lark.Lark:
-    # cache=True keeps the built LALR tables on disk, keyed by the grammar and the options: a cold
-    # `asapc lint` then loads them instead of rebuilding them.
-    return lark.Lark(_grammar_text(), parser="lalr", propagate_positions=True, maybe_placeholders=True,
-                     lexer_callbacks={"NAME": _reserve_keywords}, cache=True)
-
-
-@functools.lru_cache(maxsize=None)
-def _terminal_patterns() -> dict[str, str]:
-    """Terminal name -> how to show it to a user."""
-    out = {}
-    for t in _lark().terminals:
-        if t.name in _TERMINAL_WORDS:
-            out[t.name] = _TERMINAL_WORDS[t.name]
-        elif isinstance(t.pattern, lark.lexer.PatternStr):
-            out[t.name] = f"'{t.pattern.value}'"
-        else:
-            out[t.name] = t.name.lower()
-    out["$END"] = _TERMINAL_WORDS["$END"]
-    return out
-
-
-def _describe_expected(names: set[str]) -> str:
-    words = _terminal_patterns()
-    shown = sorted({words.get(n, n.lower()) for n in names if not n.startswith("__") or n in words})
-    # Anonymous punctuation (__ANON_n) is mapped through its pattern above; never print raw names.
-    shown = [s for s in shown if not s.startswith("__")]
-    if not shown:
-        return ""
-    if len(shown) > 8:
-        return "expected one of " + ", ".join(shown[:8]) + ", ..."
-    if len(shown) == 1:
-        return "expected " + shown[0]
-    return "expected " + ", ".join(shown[:-1]) + " or " + shown[-1]
-
-
-def _describe_token(tok: Token) -> str:
-    if tok.type == "$END":
-        return "the end of the file"
-    if tok.type == "NAME":
-        return f"name '{tok}'"
-    if tok.type in ("NUMBER", "DURATION"):
-        return f"number {tok}"
-    if tok.type == "STRING":
-        return f"string {tok}"
-    if tok.isidentifier():
-        return f"keyword '{tok}'"
-    return f"'{tok}'"
-
-
-def _span_of_token(tok: Token) -> Span:
-    line = tok.line or 1
-    col = tok.column or 1
-    end_line = tok.end_line or line
-    end_col = tok.end_column or col + max(1, len(tok))
-    return Span(line, col, end_line, end_col)
-
-
-def _syntax_diagnostic(err: lark.exceptions.LarkError, text: str, file: str) -> Diagnostic:
-    lines = text.splitlines() or [""]
-    if isinstance(err, lark.exceptions.UnexpectedCharacters):
-        ch = text[err.pos_in_stream] if err.pos_in_stream < len(text) else ""
-        what = f"unexpected character {ch!r}" if ch.isprintable() else f"unexpected character {ch!r} (not printable)"
-        hint = None
-        if ch == '"':
-            hint = "strings must end on the same line with a closing double quote"
-        elif ch == ".":
-            hint = "write a number with a digit before the point (0.5), or `a..b` for an episode range"
-        span = Span(err.line, err.column, err.line, err.column + 1)
-        return make("E001", what, span, file, hint)
-    if isinstance(err, lark.exceptions.UnexpectedToken):
-        tok = err.token
-        if tok.type == "$END":
-            line = len(lines)
-            col = len(lines[-1]) + 1 if lines else 1
-            span = Span(line, col, line, col + 1)
-        else:
-            span = _span_of_token(tok)
-        spaced = _spaced_unit_before(tok, text)
-        if spaced is not None:  # `episode 2 s .. 15s`: the unit apart from its number
-            return make("E001", f"write `{spaced}{tok}`: a unit goes right after its number, with no space", span, file)
-        expected = _describe_expected(set(err.expected))
-        message = f"unexpected {_describe_token(tok)}" + (f"; {expected}" if expected else "")
-        hint = None
-        if tok.type != "NAME" and tok.isidentifier() and "NAME" in err.expected:
-            hint = f"'{tok}' is a reserved word of the language: it cannot name anything, nor be read as a value"
-        elif tok.type == "$END":
-            hint = "a '}', ')' or ']' may be missing"
-        elif tok == "=" and "PRIME" in err.expected:
-            hint = "an ODE equation is written x' = expr"
-        else:
-            hint = _misspelt_keyword_hint(tok, err.expected, text)
-        return make("E001", message, span, file, hint)
-    if isinstance(err, lark.exceptions.UnexpectedEOF):
-        line = len(lines)
-        col = len(lines[-1]) + 1 if lines else 1
-        return make("E001", "unexpected end of the file", Span(line, col, line, col + 1), file, "a '}', ')' or ']' may be missing")
-    return make("E001", "the text could not be parsed", Span(1, 1, 1, 2), file)
-
-
-def _spaced_unit_before(tok: Token, text: str) -> Optional[str]:
-    """The number written just before a unit token (``2`` in ``2 s``) on the same line, else None."""
-    if tok.type != "NAME" or str(tok) not in ("s", "ms") or tok.start_pos is None:
-        return None
-    m = re.search(r"(\d+(?:\.\d+)?(?:[eE][+-]?\d+)?)[ \t]+$", text[max(0, tok.start_pos - 40):tok.start_pos])
-    return m.group(1) if m else None
-
-
-def _misspelt_keyword_hint(tok: Token, expected: set, text: str) -> Optional[str]:
-    """'did you mean' for a misspelt keyword: the unexpected word itself, or the word before it
-    (`eventualy[0, 3]` reads as a name followed by an unexpected '[')."""
-    from .diagnostics import closest
-
-    words = keywords()
-    if tok.type == "NAME":
-        wanted = [w for w, name in words.items() if name in expected]
-        sug = closest(str(tok), wanted)
-        if sug:
-            return f"did you mean '{sug}'?"
-    pos = getattr(tok, "start_pos", None)
-    if pos is None:
-        return None
-    before = text[:pos].rstrip()
-    i = len(before)
-    while i > 0 and (before[i - 1].isalnum() or before[i - 1] == "_"):
-        i -= 1
-    word = before[i:]
-    if word and word not in words and word[0].isalpha():
-        sug = closest(word, words)
-        if sug:
-            return f"'{word}' is read as a name; did you mean the keyword '{sug}'?"
-    return None
 
 
 def _span(meta: Any) -> Span:
@@ -231,14 +60,14 @@ class _Builder(Transformer):
     # -------------------------------------------------------------- expressions
     def number(self, meta, children):
         tok = children[0]
-        return ast.Number(float(tok), _span_of_token(tok))
+        return ast.Number(float(tok), token_span(tok))
 
     def infinity(self, meta, children):
         return ast.Infinity(_span(meta))
 
     def name(self, meta, children):
         tok = children[0]
-        return ast.Name(str(tok), _span_of_token(tok))
+        return ast.Name(str(tok), token_span(tok))
 
     def dt_ref(self, meta, children):  # `dt` read in an expression: the system's step, a constant
         return ast.Name("dt", _span(meta))
@@ -246,14 +75,14 @@ class _Builder(Transformer):
     def call(self, meta, children):
         tok = children[0]
         args = tuple(c for c in children[1:] if c is not None)
-        return ast.Call(str(tok), args, _span(meta), _span_of_token(tok))
+        return ast.Call(str(tok), args, _span(meta), token_span(tok))
 
     def paren(self, meta, children):
         return children[0]
 
     def in_region(self, meta, children):
         tok = children[-1]
-        return ast.InRegion(str(tok), _span(meta), _span_of_token(tok))
+        return ast.InRegion(str(tok), _span(meta), token_span(tok))
 
     def true(self, meta, children):
         return ast.BoolLiteral(True, _span(meta))
@@ -305,7 +134,7 @@ class _Builder(Transformer):
 
     def _op(self, meta, children):
         tok = children[0]
-        return (str(tok), _span_of_token(tok))
+        return (str(tok), token_span(tok))
 
     implies_op = or_op = and_op = not_op = temporal1_op = temporal2_op = _op
     compare_op = add_op = mul_op = _op
@@ -318,7 +147,7 @@ class _Builder(Transformer):
         if not children:  # the keyword `inf` is filtered out of the tree
             return ast.Duration(float("inf"), "steps", _span(meta))
         tok = children[0]
-        span = _span_of_token(tok)
+        span = token_span(tok)
         if tok.type == "INF":
             return ast.Duration(float("inf"), "steps", span)
         if tok.type == "DURATION":
@@ -329,40 +158,37 @@ class _Builder(Transformer):
     def range(self, meta, children):
         return ast.Range(children[0], children[1], _span(meta))
 
-    # -------------------------------------------------------------- system
-    def const_decl(self, meta, children):
-        tok, value = children
-        return ast.ConstDecl(str(tok), value, _span(meta), _span_of_token(tok))
+    # -------------------------------------------------------------- declarations
+    def _named(cls):
+        """A declaration ``NAME ...``: ``cls(name, *the rest, span, name_span)``."""
+        def method(self, meta, children):
+            tok, *rest = children
+            return cls(str(tok), *rest, _span(meta), token_span(tok))
+        return method
 
+    const_decl = _named(ast.ConstDecl)
+    state_decl = _named(ast.StateDecl)
+    action_decl = _named(ast.ActionDecl)
+    let_decl = _named(ast.LetDecl)
+    map_eq = _named(ast.Equation)
+    setting = train_setting = _named(ast.Setting)
+    region_decl = _named(ast.RegionDecl)
+    formula_decl = _named(ast.FormulaDecl)
+
+    # -------------------------------------------------------------- system
     def bare_binding(self, meta, children):
         tok, value = children
-        return ("bare_binding", ast.ConstDecl(str(tok), value, _span(meta), _span_of_token(tok)))
-
-    def state_decl(self, meta, children):
-        tok, space, init = children
-        return ast.StateDecl(str(tok), space, init, _span(meta), _span_of_token(tok))
+        return ("bare_binding", ast.ConstDecl(str(tok), value, _span(meta), token_span(tok)))
 
     def init_clause(self, meta, children):
         return children[0]
-
-    def action_decl(self, meta, children):
-        tok, bounds = children
-        return ast.ActionDecl(str(tok), bounds, _span(meta), _span_of_token(tok))
-
-    def let_decl(self, meta, children):
-        tok, value = children
-        return ast.LetDecl(str(tok), value, _span(meta), _span_of_token(tok))
 
     def dt_decl(self, meta, children):
         return ("dt", children[0])
 
     def ode_eq(self, meta, children):
         tok, _prime, value = children
-        return ast.Equation(str(tok), value, _span(meta), _span_of_token(tok))
-
-    def map_eq(self, meta, children):
-        tok, value = children
-        return ast.Equation(str(tok), value, _span(meta), _span_of_token(tok))
+        return ast.Equation(str(tok), value, _span(meta), token_span(tok))
 
     def ode_block(self, meta, children):
         eqs = tuple(c for c in children if isinstance(c, ast.Equation))
@@ -378,13 +204,7 @@ class _Builder(Transformer):
     def time_value(self, meta, children):
         tok = children[0]
         unit = "ms" if tok.endswith("ms") else "s"
-        return ast.Duration(float(tok[: -len(unit)]), unit, _span_of_token(tok))
-
-    def setting(self, meta, children):
-        tok, value = children
-        return ast.Setting(str(tok), value, _span(meta), _span_of_token(tok))
-
-    train_setting = setting
+        return ast.Duration(float(tok[: -len(unit)]), unit, token_span(tok))
 
     def integrator_args(self, meta, children):
         return tuple(c for c in children if c is not None)
@@ -393,7 +213,7 @@ class _Builder(Transformer):
 
     def integrator_decl(self, meta, children):
         tok, settings = children
-        return ast.IntegratorDecl(str(tok), settings or (), _span(meta), _span_of_token(tok))
+        return ast.IntegratorDecl(str(tok), settings or (), _span(meta), token_span(tok))
 
     def sep(self, meta, children):
         return ("sep", str(children[0]))
@@ -473,7 +293,7 @@ class _Builder(Transformer):
             elif isinstance(it, ast.IntegratorDecl):
                 integ.append(it)
         return ast.System(str(tok), tuple(consts), tuple(states), tuple(actions), tuple(lets), tuple(dts),
-                          tuple(dyn), tuple(integ), _span(meta), _span_of_token(tok))
+                          tuple(dyn), tuple(integ), _span(meta), token_span(tok))
 
     # -------------------------------------------------------------- regions
     def vector(self, meta, children):
@@ -497,14 +317,6 @@ class _Builder(Transformer):
     def box(self, meta, children):
         return ast.Box(tuple(c for c in children if c is not None), _span(meta))
 
-    def region_decl(self, meta, children):
-        tok, shape = children
-        return ast.RegionDecl(str(tok), shape, _span(meta), _span_of_token(tok))
-
-    def formula_decl(self, meta, children):
-        tok, body = children
-        return ast.FormulaDecl(str(tok), body, _span(meta), _span_of_token(tok))
-
     # -------------------------------------------------------------- tasks
     def _clause(keyword):
         def method(self, meta, children):
@@ -524,7 +336,7 @@ class _Builder(Transformer):
         return ("bare_duration", children[0])
 
     def observe_item(self, meta, children):
-        return (str(children[0]), _span_of_token(children[0]))
+        return (str(children[0]), token_span(children[0]))
 
     def observe_clause(self, meta, children):
         return ast.Clause("observe", (children[0],), _span(meta))
@@ -539,11 +351,15 @@ class _Builder(Transformer):
         return ast.Clause("init", children[0], _span(meta))
 
     def reward_kind(self, meta, children):
-        return (str(children[0]), _span_of_token(children[0]))
+        return (str(children[0]), token_span(children[0]))
 
-    def reward_clause(self, meta, children):
+    def reward(self, meta, children):
         (kind, _), settings = children
-        return ast.Clause("reward", ast.RewardSyntax(kind, settings or (), _span(meta)), _span(meta))
+        return ast.RewardSyntax(kind, settings or (), _span(meta))
+
+    def reward_clause(self, meta, children):  # the reward's span is the clause's, keyword included
+        syn = children[0]
+        return ast.Clause("reward", ast.RewardSyntax(syn.kind, syn.settings, _span(meta)), _span(meta))
 
     def train_block(self, meta, children):
         settings = tuple(c for c in children if isinstance(c, ast.Setting))
@@ -562,7 +378,7 @@ class _Builder(Transformer):
 
         merged = self._fold_continuations(list(children[1:]), continue_clause, self._spaced_unit)
         clauses = tuple(c for c in merged if isinstance(c, ast.Clause))
-        return ast.TaskDecl(str(tok), clauses, _span(meta), _span_of_token(tok))
+        return ast.TaskDecl(str(tok), clauses, _span(meta), token_span(tok))
 
     def _spaced_unit(self, kind, head, payload):
         """``deadline 15 s``: a unit written apart from its number. One error at the unit, and the
@@ -618,11 +434,24 @@ def parse(text: str, file: str = "<string>") -> tuple[ast.Module, list[Diagnosti
     after the parser has lost its way). Structural problems that the parse survives are returned
     as diagnostics for the checker to report with its own.
     """
+    return _build(text, file, "start", "the end of the file")
+
+
+def parse_reward(text: str, file: str = "--reward") -> ast.RewardSyntax:
+    """Parse a reward written on its own as the ``reward`` clause writes it (``asap``,
+    ``rho(window = 5)``, ``distance(lambda_t = 2, base = 1)``), by the grammar's own rule.
+    A syntax error raises :class:`SpecError`, as :func:`parse` does."""
+    syn, _ = _build(text, file, "reward", "end of the reward")
+    return syn
+
+
+def _build(text: str, file: str, start: str, end: str) -> tuple[Any, list[Diagnostic]]:
+    """The AST of ``text`` parsed from the rule ``start``, and the structural diagnostics."""
     diag = Collector(file)
     try:
-        tree = _lark().parse(text)
+        tree = get_parser().parse(text, start=start)
     except lark.exceptions.LarkError as err:
-        raise SpecError([_syntax_diagnostic(err, text, file)], text) from None
+        raise SpecError([syntax_diagnostic(err, text, file, end)], text) from None
     except RecursionError:
         raise SpecError([make("E001", "the text nests too deeply to parse", Span(1, 1, 1, 2), file)], text) from None
     too_deep = _too_deep(tree)
@@ -631,9 +460,9 @@ def parse(text: str, file: str = "<string>") -> tuple[ast.Module, list[Diagnosti
                               "function calls, `not`, `-` and temporal operators)", too_deep, file,
                               hint="split it into named parts with `let` or `formula`")], text)
     try:
-        module = _Builder(diag).transform(tree)
+        built = _Builder(diag).transform(tree)
     except lark.exceptions.VisitError as err:  # a builder bug must still not reach the user raw
         raise SpecError([make("E001", f"the text could not be read: {err.orig_exc}", Span(1, 1, 1, 2), file)], text) from None
     except RecursionError:
         raise SpecError([make("E001", "the text nests too deeply to parse", Span(1, 1, 1, 2), file)], text) from None
-    return module, diag.items
+    return built, diag.items

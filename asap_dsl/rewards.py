@@ -32,8 +32,8 @@ the interval bounds, and where a bound is unknown (infinite) an infinite value b
 
 from __future__ import annotations
 
+import dataclasses
 import math
-import re
 from typing import Any, Mapping, Optional
 
 import numpy as np
@@ -41,9 +41,8 @@ import numpy as np
 from .model import RegionModel, RewardModel, TaskModel, formula_bounds
 from .stl import ir
 
-__all__ = ["REWARD_KINDS", "FormulaTracker", "Reward", "make_reward", "parse_reward", "reward_trace"]
-
-REWARD_KINDS = {"asap": (), "rho": ("window",), "distance": ("lambda_t", "lambda_o", "base")}
+__all__ = ["FormulaTracker", "Reward", "check_reward_fits", "is_static", "make_reward", "parse_reward",
+           "resolve_reward", "reward_trace", "static_eval"]
 
 
 # --------------------------------------------------------------------------------------------
@@ -51,16 +50,19 @@ REWARD_KINDS = {"asap": (), "rho": ("window",), "distance": ("lambda_t", "lambda
 # --------------------------------------------------------------------------------------------
 
 
-def _is_static(node: ir.Formula) -> bool:
-    """True for boolean combinations of atoms: the value at t depends on s_t only."""
+def is_static(node: ir.Formula) -> bool:
+    """True for Boolean combinations of atoms (and ``true``/``false``): the value at t depends on
+    the state s_t only, so :func:`static_eval` computes it without a monitor."""
     if isinstance(node, (ir.Atom, ir.Const)):
         return True
     if isinstance(node, (ir.Not, ir.And, ir.Or, ir.Implies)):
-        return all(_is_static(c) for c in ir.children(node))
+        return all(is_static(c) for c in ir.children(node))
     return False
 
 
-def _static_eval(node: ir.Formula, states: np.ndarray, boolean: bool) -> np.ndarray:
+def static_eval(node: ir.Formula, states: np.ndarray, boolean: bool) -> np.ndarray:
+    """A static formula (:func:`is_static`) on the states ``[B, n]``: its satisfaction (bool
+    ``[B]``) if ``boolean``, else its robustness (float64 ``[B]``; ``true``/``false`` are ±inf)."""
     if isinstance(node, ir.Atom):
         return np.asarray(node.satisfied(states) if boolean else node.robustness(states),
                           dtype=bool if boolean else np.float64)
@@ -68,10 +70,10 @@ def _static_eval(node: ir.Formula, states: np.ndarray, boolean: bool) -> np.ndar
         v = node.value if boolean else (math.inf if node.value else -math.inf)
         return np.full(states.shape[0], v, dtype=bool if boolean else np.float64)
     if isinstance(node, ir.Not):
-        v = _static_eval(node.arg, states, boolean)
+        v = static_eval(node.arg, states, boolean)
         return ~v if boolean else -v
-    a = _static_eval(node.left, states, boolean)
-    b = _static_eval(node.right, states, boolean)
+    a = static_eval(node.left, states, boolean)
+    b = static_eval(node.right, states, boolean)
     if isinstance(node, ir.Implies):
         a = ~a if boolean else -a
     if isinstance(node, ir.And):
@@ -93,17 +95,15 @@ class FormulaTracker:
 
     Formulas of atoms only are evaluated directly. Others use one online monitor of B entries:
     a restart is ``reset(mask)`` and ``update(cand, mask=mask)``, which advances the restarted
-    entries only (to their step 0) and leaves the others as they are. ``autoreset`` is accepted
-    for compatibility; every tracker can restart.
+    entries only (to their step 0) and leaves the others as they are.
     """
 
-    def __init__(self, node: ir.Formula, batch: int, n_state: int, *, satisfaction: bool = True,
-                 autoreset: bool = False):
+    def __init__(self, node: ir.Formula, batch: int, n_state: int, *, satisfaction: bool = True):
         from .stl import online
 
         self.node, self.B, self.n = node, int(batch), n_state
-        self.satisfaction, self.autoreset = satisfaction, autoreset
-        self.static = _is_static(node)
+        self.satisfaction = satisfaction
+        self.static = is_static(node)
         self.rob = np.zeros(self.B)
         self.sat = np.zeros(self.B, dtype=bool)
         self.step_rob, self.step_sat = self.rob, self.sat
@@ -113,8 +113,8 @@ class FormulaTracker:
         self.mon = online.monitor_for(node, self.B, satisfaction=satisfaction, n_state=n_state)
 
     def _eval_static(self, states):
-        rob = _static_eval(self.node, states, False)
-        sat = _static_eval(self.node, states, True) if self.satisfaction else np.zeros(len(states), bool)
+        rob = static_eval(self.node, states, False)
+        sat = static_eval(self.node, states, True) if self.satisfaction else np.zeros(len(states), bool)
         return rob, sat
 
     def _update(self, states, mask=None):
@@ -201,70 +201,82 @@ def _clip_finite(x: np.ndarray, lo: float, hi: float) -> np.ndarray:
     return x
 
 
-_REWARD_RE = re.compile(r"^\s*([A-Za-z_]\w*)\s*(?:\((.*)\))?\s*$")
+def parse_reward(text: str, dt: Optional[float] = None) -> RewardModel:
+    """``"asap"``, ``"rho"``, ``"rho(window = 5)"``, ``"distance(lambda_t = 2, base = 1)"`` -> the
+    model, read by the grammar's ``reward`` rule and checked as a spec's ``reward`` clause is
+    (settings are constant expressions: numbers, ``pi``, ``e``, and ``dt`` when given, which a
+    window in seconds such as ``rho(window = 1s)`` needs). Raises ValueError, one sentence."""
+    from . import parser
+    from .diagnostics import SpecError
+
+    try:
+        syn = parser.parse_reward(text)
+    except SpecError as err:
+        raise ValueError(f"cannot read the reward {text!r}: {err.diagnostics[0].message}; write e.g. asap, rho, "
+                         "rho(window = 5), distance(lambda_t = 1)") from None
+    return _checked(syn, text, dt)
 
 
-def parse_reward(text: str) -> RewardModel:
-    """``"asap"``, ``"rho"``, ``"rho(window = 5)"``, ``"distance(lambda_t=2, base=1)"`` -> RewardModel."""
-    m = _REWARD_RE.match(text)
-    if not m:
-        raise ValueError(f"cannot read the reward {text!r}; write e.g. asap, rho, rho(window = 5), distance(lambda_t = 1)")
-    kind, args = m.group(1), m.group(2)
-    params: dict[str, float] = {}
-    if args and args.strip():
-        for part in args.split(","):
-            if "=" not in part:
-                raise ValueError(f"reward setting {part.strip()!r} in {text!r} needs the form name = value")
-            k, v = (s.strip() for s in part.split("=", 1))
-            try:
-                params[k] = float(v)
-            except ValueError:
-                raise ValueError(f"reward setting {k} = {v!r} in {text!r} is not a number") from None
-    return _checked_model(kind, params)
+def _checked(syn, text: str, dt: Optional[float]) -> RewardModel:
+    from .checker import check_reward
+
+    model, found = check_reward(syn, text, "--reward", dt)
+    if model is None:
+        d = next(d for d in found if d.is_error)
+        raise ValueError(d.message + (f"; {d.hint}" if d.hint else ""))
+    return dataclasses.replace(model, span=None)  # no place in a file
 
 
-def _checked_model(kind: str, params: Mapping[str, float]) -> RewardModel:
-    if kind not in REWARD_KINDS:
-        from .diagnostics import closest
+def _checked_model(model: RewardModel, dt: Optional[float]) -> RewardModel:
+    """A model built in Python, checked as a parsed one is."""
+    from . import ast
+    from .diagnostics import Span
 
-        sug = closest(kind, tuple(REWARD_KINDS))
-        hint = f"; did you mean '{sug}'?" if sug else ""
-        raise ValueError(f"unknown reward '{kind}'{hint} (choose asap, rho, rho(window = D) or distance(...))")
-    params = dict(params)
-    for k in params:
-        if not abs(float(params[k])) <= FLOAT32_MAX:
-            raise ValueError(f"reward setting {k} must be a finite number within ±3.4e38 (a float32 reward); got {params[k]}")
-        if k not in REWARD_KINDS[kind]:
-            raise ValueError(f"reward {kind} has no setting '{k}' (it takes {', '.join(REWARD_KINDS[kind]) or 'no settings'})")
-    if "window" in params:
-        w = params["window"]
-        if not float(w).is_integer() or w < 1:
-            raise ValueError(f"the reward window must be a whole number of steps, at least 1; got {w}")
-        params["window"] = int(w)
-    if kind == "distance":
-        params = {"lambda_t": 1.0, "lambda_o": 1.0, "base": 0.0, **params}
-    return RewardModel(kind, params)
+    settings = []
+    for k, v in model.params.items():
+        try:
+            value = float(v)
+        except (TypeError, ValueError):
+            raise ValueError(f"reward setting {k} must be a number; got {v!r}") from None
+        settings.append(ast.Setting(k, ast.Number(value, Span()), Span(), Span()))
+    return _checked(ast.RewardSyntax(model.kind, tuple(settings), Span()), model.text, dt)
 
 
-def resolve_reward(task: TaskModel, reward: Any = None) -> RewardModel:
-    """The reward to use: the task's own, or ``reward`` (a kind, a text with settings, or a model)."""
+def resolve_reward(task: TaskModel, reward: Any = None, dt: Optional[float] = None) -> RewardModel:
+    """The reward to use: the task's own, or ``reward`` (a kind, a text with settings, or a model),
+    checked (``dt``: the system's step, for a window in seconds). Raises ValueError or TypeError."""
     if reward is None:
         return task.reward
     if isinstance(reward, RewardModel):
-        return _checked_model(reward.kind, reward.params)
+        return _checked_model(reward, dt)
     if not isinstance(reward, str):
         raise TypeError(f"reward must be a string such as 'asap' or 'rho(window = 5)'; got {type(reward).__name__}")
-    model = parse_reward(reward)
+    model = parse_reward(reward, dt)
     if "(" not in reward and model.kind == task.reward.kind:
         return task.reward  # the task's own settings
     return model
+
+
+def check_reward_fits(task: TaskModel, model: RewardModel) -> None:
+    """Raise ValueError (one sentence) where ``model`` cannot be computed for ``task``: the
+    distance reward measures to the regions of ``in R`` atoms, in ``asap`` and (if the task has
+    one) in ``avoid``."""
+    if model.kind != "distance":
+        return
+    if not task.asap_regions:
+        raise ValueError(f"task {task.name}: the distance reward needs region atoms (`in R`) in `asap`, "
+                         "and this task's asap has none; use reward asap or rho")
+    if task.avoid is not None and not task.avoid_regions:
+        raise ValueError(f"task {task.name}: the distance reward needs region atoms (`in R`) in `avoid`, "
+                         "and this task's avoid has none")
 
 
 class Reward:
     """Batched per-step reward of one kind, with the trackers it needs (besides ``asap``'s)."""
 
     def __init__(self, task: TaskModel, regions: Mapping[str, RegionModel], n_state: int, batch: int,
-                 model: RewardModel, autoreset: bool = False, failure_reward: Optional[float] = None):
+                 model: RewardModel, failure_reward: Optional[float] = None):
+        check_reward_fits(task, model)
         self.task, self.model, self.kind, self.B = task, model, model.kind, int(batch)
         self.trackers: list[FormulaTracker] = []
         self.tracker: Optional[FormulaTracker] = None
@@ -288,16 +300,10 @@ class Reward:
             node = ir.cap_past_windows(node, task.deadline)  # past windows inside asap/avoid too
             self.node = node
             self.bounds = formula_bounds(node)
-            self.tracker = FormulaTracker(node, batch, n_state, satisfaction=False, autoreset=autoreset)
+            self.tracker = FormulaTracker(node, batch, n_state, satisfaction=False)
             self.trackers.append(self.tracker)
             floor = self.bounds[0]
         else:  # distance
-            if not task.asap_regions:
-                raise ValueError(f"task {task.name}: the distance reward needs region atoms (`in R`) in `asap`, "
-                                 "and this task's asap has none; use reward asap or rho")
-            if task.avoid is not None and not task.avoid_regions:
-                raise ValueError(f"task {task.name}: the distance reward needs region atoms (`in R`) in `avoid`, "
-                                 "and this task's avoid has none")
             self.goal = [regions[r] for r in task.asap_regions]
             self.obstacles = [regions[r] for r in task.avoid_regions] if task.avoid is not None else []
             p = model.params
@@ -352,8 +358,10 @@ class Reward:
 
 
 def make_reward(task: TaskModel, regions: Mapping[str, RegionModel], n_state: int, batch: int = 1,
-                reward: Any = None, autoreset: bool = False, failure_reward: Optional[float] = None) -> Reward:
-    return Reward(task, regions, n_state, batch, resolve_reward(task, reward), autoreset, failure_reward)
+                reward: Any = None, failure_reward: Optional[float] = None, dt: Optional[float] = None) -> Reward:
+    """The :class:`Reward` of ``task`` for ``batch`` entries: its own, or ``reward`` (see
+    :func:`resolve_reward`; ``dt`` for a window in seconds)."""
+    return Reward(task, regions, n_state, batch, resolve_reward(task, reward, dt), failure_reward)
 
 
 def reward_trace(program, task: str, trace: Any, reward: Any = None) -> np.ndarray:
@@ -365,7 +373,7 @@ def reward_trace(program, task: str, trace: Any, reward: Any = None) -> np.ndarr
         tr = tr[None]
     B, T, n = tr.shape
     tm = program.task(task).model
-    rw = make_reward(tm, program.regions, n, B, reward)
+    rw = make_reward(tm, program.regions, n, B, reward, dt=program.system.dt)
     asap = FormulaTracker(tm.asap, B, n)
     asap.restart_all(tr[:, 0])
     rw.restart_all(tr[:, 0])

@@ -76,12 +76,12 @@ class Evaluator:
 
     def __init__(self, program, task: Optional[str], states: np.ndarray, reward: Any = None,
                  steps: Optional[int] = None):
-        from .env import _Core
+        from .env import EnvCore
 
         self.states = np.asarray(states, dtype=np.float64)
         if self.states.ndim != 2 or len(self.states) == 0:
             raise ValueError(f"initial states must be a non-empty [N, n] array; got shape {self.states.shape}")
-        self.core = _Core(program, task, len(self.states), reward, autoreset=False)
+        self.core = EnvCore(program, task, len(self.states), reward, autoreset=False)
         if self.states.shape[1] != self.core.n:
             raise ValueError(f"initial states have {self.states.shape[1]} entries; the system has {self.core.n} states")
         self.task = self.core.task
@@ -137,7 +137,21 @@ class Evaluator:
 
 def rollout(program, task: Optional[str], controller: Controller, states: np.ndarray, reward: Any = None,
             steps: Optional[int] = None, record: bool = False) -> RolloutResult:
-    """Roll ``states`` out under ``controller`` once (see :class:`Evaluator` to reuse the set-up)."""
+    """Roll ``states`` out under ``controller`` once, all in one batch, on the rules of the
+    module docstring (:class:`Evaluator` builds the environment once for many controllers).
+
+    :param program: a :class:`asap_dsl.Program`
+    :param task: the task's name; None for a spec with one task (KeyError for an unknown one)
+    :param controller: anything with ``reset(states)`` and ``act(obs, states, t) -> actions``
+        (:class:`Controller`)
+    :param states: the initial states, ``[N, n]`` (N at least 1; ValueError otherwise)
+    :param reward: None for the task's own reward, or a reward as :func:`asap_dsl.make_env`
+        takes it (what ``returns`` sums)
+    :param steps: the episode length; None for the task's deadline
+    :param record: also keep every state and action (``trajectories``, ``actions``)
+    :return: per initial state, when ``asap`` first held, how and when the episode ended and its
+        return (:class:`RolloutResult`)
+    """
     return Evaluator(program, task, states, reward, steps).run(controller, record)
 
 

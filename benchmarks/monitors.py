@@ -63,7 +63,7 @@ def main():
         sysm = prog.system
         rng = np.random.default_rng(0)
         states, done, cand = draw(sysm, B, args.steps, rng)
-        tr = FormulaTracker(tm.asap, B, sysm.n_state, autoreset=True)
+        tr = FormulaTracker(tm.asap, B, sysm.n_state)
         floor, sep, com = [], [], []  # interleaved, so that machine noise hits all three alike
         for _ in range(args.repeat):
             floor.append(run(tr, states, np.zeros_like(done), cand, False))

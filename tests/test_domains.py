@@ -162,3 +162,16 @@ def test_reward_settings_and_failure_reward_outside_float32_are_refused():
         parse_reward("distance(lambda_t = 1e39)")
     with pytest.raises(ValueError, match="3.4e38"):
         make_env(asap_dsl.loads(BASE), failure_reward=-1e39)
+
+
+@pytest.mark.parametrize("bounds", ["[-1e39, 1]", "[0, 1e39]", "[-1e300, 1e300]"])
+def test_action_bounds_beyond_float32_are_an_error_not_an_overflow(bounds):
+    """Found by the fuzz: `action u in [-1e39, 1e39]` is finite, but its float32 action space
+    was ±inf (numpy warned "overflow encountered in cast") and drawing actions from it raised
+    OverflowError. An agent's actions are float32: such bounds are one E117."""
+    src = BASE.replace("action u in [-1, 1]", f"action u in {bounds}")
+    found = [d for d in diagnostics(src) if d.code == "E117"]
+    assert len(found) == 1 and "float32" in found[0].message and "action 'u'" in found[0].message, found
+    edge = BASE.replace("action u in [-1, 1]", "action u in [-3.4e38, 3.4e38]")  # float32 holds these
+    env = make_vec_env(asap_dsl.loads(edge), num_envs=2, seed=0)
+    assert np.isfinite(env.action_space.low).all() and np.isfinite(env.action_space.high).all()

@@ -306,3 +306,23 @@ def test_capping_past_windows_is_exact_on_episode_length_traces():
         capped = ir.cap_past_windows(f, 30)
         assert np.array_equal(offline.robustness(f, traces, n_state=3), offline.robustness(capped, traces, n_state=3))
         assert np.array_equal(offline.satisfied(f, traces, n_state=3), offline.satisfied(capped, traces, n_state=3))
+
+
+def test_reset_info_is_finite_where_rho_is_infinite():
+    """At step 0 a past window that starts later is empty: rho is -inf (once) or +inf
+    (historically) there. The info of a reset makes it finite as a step's does (the formula's
+    bound), in the single and the vector env alike."""
+    src = ("system A { state x in [-1, 1] init [-0.5, 0.5]  action u in [-1, 1]  dt = 1  map { x = x + 0.1 * u } }\n"
+           "task low { asap once[1, 2] x > 0.5  deadline 5 }\n"
+           "task high { asap historically[1, 2] x > 0.5  deadline 5 }")
+    prog = asap_dsl.loads(src)
+    for task, expected in (("low", -np.inf), ("high", np.inf)):
+        env = asap_dsl.make_env(prog, task=task, seed=0)
+        _, info = env.reset(seed=0)
+        assert env.unwrapped.core.asap.rob[0] == expected  # what the monitor says: infinite
+        lo, hi = prog.task(task).model.rho_bounds
+        assert np.isfinite(info["rho"]) and info["rho"] == (lo if expected < 0 else hi), info
+        venv = asap_dsl.make_vec_env(prog, task=task, num_envs=3, seed=0)
+        venv.reset()
+        assert all(np.isfinite(i["rho"]) for i in venv.reset_infos), venv.reset_infos
+        assert [i["end_reason"] for i in venv.reset_infos] == [None] * 3 and [i["t"] for i in venv.reset_infos] == [0] * 3

@@ -98,8 +98,8 @@ def test_distance_needs_region_atoms(line):
     ("speed", "unknown reward 'speed'"),
     ("rhoo", "did you mean 'rho'"),
     ("rho(width = 3)", "has no setting 'width'"),
-    ("rho(window = 0)", "at least 1"),
-    ("distance(lambda_t = x)", "not a number"),
+    ("rho(window = 0)", "at least one step"),
+    ("distance(lambda_t = x)", "unknown constant 'x'"),
 ])
 def test_bad_reward_names(line, bad, message):
     with pytest.raises(ValueError, match=message):
@@ -147,3 +147,37 @@ def test_failure_step_earns_the_floor(line):
 def test_parse_reward():
     assert parse_reward("rho(window = 5)").params == {"window": 5}
     assert parse_reward("distance").params == {"lambda_t": 1.0, "lambda_o": 1.0, "base": 0.0}
+
+
+@pytest.mark.parametrize("text", ["rho(width = 3)", "rhoo", "distance(lambda_t = 1e39)", "rho(window = 2.5)",
+                                  "rho(window = 0)", "asap(k = 1)"])
+def test_a_reward_flag_is_checked_as_the_clause_is(text):
+    """`--reward TEXT` is read by the grammar's own rule and checked by the checker's own code:
+    its one sentence is the clause's diagnostic (message; hint)."""
+    src = LINE.replace("task cmp { asap x > 4  deadline 10 }", f"task cmp {{ asap x > 4  deadline 10  reward {text} }}")
+    with pytest.raises(asap_dsl.SpecError) as info:
+        asap_dsl.loads(src)
+    (d,) = info.value.errors
+    with pytest.raises(ValueError) as flag:
+        parse_reward(text)
+    assert str(flag.value) == d.message + (f"; {d.hint}" if d.hint else "")
+
+
+def test_a_reward_flag_takes_what_the_clause_takes():
+    assert parse_reward("distance(lambda_t = 2 * pi, base = -1)").params == {"lambda_t": 2 * np.pi, "lambda_o": 1.0,
+                                                                             "base": -1.0}
+    assert parse_reward("rho( window=3 )").params == {"window": 3}
+    assert parse_reward("rho(window = 500ms)", dt=0.1).params == {"window": 5}  # a time: needs the system's dt
+    with pytest.raises(ValueError, match="no valid dt"):
+        parse_reward("rho(window = 500ms)")
+    env = asap_dsl.make_env(asap_dsl.loads(LINE.replace("dt = 1", "dt = 0.5")), task="reach", reward="rho(window = 2s)")
+    assert env.unwrapped.core.reward.model.params == {"window": 4}
+
+
+@pytest.mark.parametrize("text", ["rho(window = 5", "rho window", "", "distance(lambda_t = )", "rho(5)"])
+def test_an_unreadable_reward_flag_is_one_sentence(text):
+    with pytest.raises(ValueError) as info:
+        parse_reward(text)
+    message = str(info.value)
+    assert message.startswith(f"cannot read the reward {text!r}: unexpected") and "\n" not in message
+    assert "$END" not in message and "__ANON" not in message

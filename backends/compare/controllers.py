@@ -16,7 +16,7 @@ from typing import Optional, Sequence
 
 import numpy as np
 
-from asap_dsl.rewards import _is_static, _static_eval
+from asap_dsl.rewards import is_static, static_eval
 
 __all__ = ["GreedyController", "OracleController", "candidate_actions"]
 
@@ -41,7 +41,7 @@ class GreedyController:
         self.system = program.system
         self.candidates = candidate_actions(self.system.action_low, self.system.action_high, budget)
         self._build = lambda batch: build_simulator(self.system, batch, program.file)
-        if not _is_static(self.task.asap) and not self.task.asap_regions:
+        if not is_static(self.task.asap) and not self.task.asap_regions:
             raise ValueError(f"task {self.task.name}: the greedy controller needs `asap` to be a combination of "
                              "atoms, or to name regions whose distance it can reduce")
         self.sim = None
@@ -57,15 +57,15 @@ class GreedyController:
     def _score(self, nxt: np.ndarray) -> np.ndarray:
         t = self.task
         with np.errstate(all="ignore"):
-            if _is_static(t.asap):
-                score = _static_eval(t.asap, nxt, False)
+            if is_static(t.asap):
+                score = static_eval(t.asap, nxt, False)
             else:
                 regions = self.program.regions
                 score = -np.min([regions[r].distance(nxt) for r in t.asap_regions], axis=0)
             bad = ~np.isfinite(nxt).all(axis=1)
             bad |= ((nxt < self.system.state_low) | (nxt > self.system.state_high)).any(axis=1)
-            if t.avoid is not None and _is_static(t.avoid):
-                bad |= _static_eval(t.avoid, np.where(np.isfinite(nxt), nxt, 0.0), True)
+            if t.avoid is not None and is_static(t.avoid):
+                bad |= static_eval(t.avoid, np.where(np.isfinite(nxt), nxt, 0.0), True)
         score = np.where(np.isfinite(score), score, -np.inf)
         return np.where(bad, -np.inf, score)
 

@@ -7,7 +7,7 @@ from __future__ import annotations
 from dataclasses import asdict, dataclass, field, fields
 from typing import Any, Mapping, Optional
 
-from asap_dsl.rewards import resolve_reward
+from asap_dsl.rewards import check_reward_fits, resolve_reward
 from asap_dsl.sampling import EVAL_SEED
 
 from .presets import ALGORITHMS, OFF_POLICY, get_preset
@@ -113,11 +113,11 @@ def resolve_config(prog, task: Optional[str] = None, *, algo: Optional[str] = No
         sug = closest(algo, ALGORITHMS)
         raise ConfigError(f"unknown algorithm '{algo}'" + (f"; did you mean '{sug}'?" if sug else f"; choose {', '.join(ALGORITHMS)}"))
     try:
-        reward_text = resolve_reward(t, reward).text
+        model = resolve_reward(t, reward, dt=prog.system.dt)
+        check_reward_fits(t, model)
     except (ValueError, TypeError) as err:
         raise ConfigError(str(err)) from None
-    if reward_text.startswith("distance") and not t.asap_regions:
-        raise ConfigError(f"task {t.name}: the distance reward needs region atoms (`in R`) in `asap`")
+    reward_text = model.text
     hyper = p.settings(algo)
     hyper.update({k: v for k, v in block.items() if k not in _RUN_KEYS})
     hyper.update(dict(settings or {}))
