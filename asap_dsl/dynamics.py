@@ -45,7 +45,8 @@ def affine_parts(system: SystemModel) -> tuple[np.ndarray, np.ndarray, np.ndarra
 
 
 @functools.lru_cache(maxsize=64)
-def _zoh_cached(key: bytes, n: int, m: int, dt: float, A: bytes, B: bytes, c: bytes):
+def _zoh_cached(n: int, m: int, dt: float, A: bytes, B: bytes, c: bytes):
+    # Keyed by the matrices' bytes: every environment of one system shares one matrix exponential.
     A_ = np.frombuffer(A).reshape(n, n)
     B_ = np.frombuffer(B).reshape(n, m)
     c_ = np.frombuffer(c).reshape(n)
@@ -60,7 +61,7 @@ def zero_order_hold(system: SystemModel) -> tuple[np.ndarray, np.ndarray, np.nda
     """``(Ad, Bd, cd)``: the exact discretisation of linear dynamics over one ``dt``."""
     A, B, c = affine_parts(system)
     n, m = B.shape
-    return _zoh_cached(b"", n, m, float(system.dt), A.tobytes(), np.ascontiguousarray(B).tobytes(), c.tobytes())
+    return _zoh_cached(n, m, float(system.dt), A.tobytes(), np.ascontiguousarray(B).tobytes(), c.tobytes())
 
 
 def _integrate(f: Callable[[Any, Any], Any], x: Any, u: Any, h: float, substeps: int, method: str) -> Any:
