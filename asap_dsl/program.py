@@ -190,7 +190,13 @@ def analyse(text: str, name: str = "<string>") -> tuple[Optional[ProgramModel], 
 
 
 def loads(text: str, name: str = "<string>") -> Program:
-    """Check a spec given as text; raise :class:`SpecError` with every error if it has any."""
+    """Parse, check and lint a spec given as text.
+
+    :param text: the spec's source (``\r\n`` and ``\r`` line ends are read as ``\n``)
+    :param name: the file name that diagnostics give (it is not read)
+    :return: the checked program; its ``warnings`` hold the lint warnings
+    :raises SpecError: with every error of the spec at once (positioned, each in one sentence)
+    """
     text = normalise_newlines(text)
     model, diagnostics = analyse(text, name)
     if model is None:
@@ -266,7 +272,14 @@ def read_source(path: Union[str, os.PathLike], max_bytes: Optional[int] = None) 
 
 
 def load(path: Union[str, os.PathLike]) -> Program:
-    """Read and check a ``.asap`` file; raise :class:`SpecError` with every error if it has any."""
+    """Read, parse, check and lint a ``.asap`` file.
+
+    :param path: the file: a regular file of UTF-8 text, at most ``LIMITS.spec_bytes``
+        (``asapc --max-spec-size``); a byte-order mark is skipped
+    :return: the checked program; its ``warnings`` hold the lint warnings
+    :raises SpecError: E002 if the file cannot be read as a spec (missing, a directory or device,
+        too large, not UTF-8, binary, empty), else every error of the spec at once
+    """
     return loads(read_source(path), str(path))
 
 
