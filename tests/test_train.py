@@ -15,6 +15,7 @@ import pytest
 
 import asap_dsl
 from asap_dsl import cli
+from asap_dsl.checker_common import ALGORITHMS
 from asap_dsl.runs import RunDir
 from conftest import RAIL
 
@@ -35,7 +36,15 @@ def _settings(algo):
     return dict(FAST)
 
 
-@pytest.mark.parametrize("algo", ["sac", "td3", "ddpg", "ppo", "a2c"])
+def test_presets_cover_every_algorithm_of_the_language():
+    from asap_dsl.backends.rl.presets import OFF_POLICY, PRESETS
+
+    for p in PRESETS.values():
+        assert set(p.algos) == set(ALGORITHMS) and p.algo in ALGORITHMS, p.name
+    assert set(OFF_POLICY) <= set(ALGORITHMS)
+
+
+@pytest.mark.parametrize("algo", ALGORITHMS)
 def test_each_algorithm_trains_and_evaluates(tiny, tmp_path, algo):
     out = tmp_path / "run"
     res = asap_dsl.train(tiny, algo=algo, steps=300, n_envs=2, out=out, settings=_settings(algo), eval_episodes=50)

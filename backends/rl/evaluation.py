@@ -21,7 +21,6 @@ import numpy as np
 
 from asap_dsl.limits import LIMITS
 from asap_dsl.diagnostics import SpecError
-from asap_dsl.formatting import percent, steps_text
 from asap_dsl.program import Program, loads, read_source
 from asap_dsl.rollout import Evaluator, RolloutResult
 from asap_dsl.runs import RunDir, RunError, atomic_write_json, spec_hash
@@ -71,8 +70,8 @@ class Evaluation:
 
     def render(self) -> str:
         """The table a user reads: rate, interval and ceiling per tolerance, then the rest."""
-        def pct(x):  # a column five wide, and its percent sign
-            return percent(x, 5, missing="  n/a ")
+        def pct(x):
+            return "  n/a " if x is None else f"{100 * x:5.1f}%"
 
         lines = [f"{self.spec_file}: task {self.task}, {self.method}: {self.episodes} initial states (seed {self.seed}), "
                  f"deterministic policy, {self.seconds:.2f} s"]
@@ -95,7 +94,8 @@ class Evaluation:
         s = self.steps
         lines.append("")
         if s.get("reached"):
-            lines.append(f"  steps to reach ({s['reached']} states): {steps_text(s)}")
+            lines.append(f"  steps to reach ({s['reached']} states): min {s['min']:.0f}, 25% {s['p25']:.0f}, "
+                         f"median {s['median']:.0f}, 75% {s['p75']:.0f}, max {s['max']:.0f}, mean {s['mean']:.2f}")
         else:
             lines.append("  steps to reach: no state reached the goal")
         f = self.failures
@@ -202,13 +202,23 @@ def load_run(path: Union[str, Path], spec: Union[str, Path, None] = None) -> Loa
 def evaluate(run: Union[str, Path], *, episodes: int = 1000, tolerances: Optional[Sequence[int]] = None,
              seed: int = EVAL_SEED, spec: Union[str, Path, None] = None, oracle: str = "auto",
              workers: Optional[int] = None, write: Optional[bool] = None) -> Evaluation:
-    """Evaluate a run's best model on ``episodes`` seeded initial states.
+    """Evaluate a run's best model, acting deterministically, on ``episodes`` seeded initial states.
 
-    ``oracle``: ``auto`` (use the cached ceiling, computing it first where the dynamics are
-    known), ``cache`` (only a cached one) or ``off``. ``tolerances`` default to the task's. The
-    result is written to the run's ``eval.json`` when it is the run's own evaluation (its episode
-    count and seed 2024; ``write`` forces either way). Raises :class:`RunError` or ``ValueError``
-    with one sentence.
+    :param run: the run directory (written by :func:`asap_dsl.backends.rl.training.train`).
+    :param episodes: how many initial states, drawn from the task's initial box.
+    :param tolerances: the step counts success is judged within (default: the task's).
+    :param seed: the seed of the states (default 2024, the states the oracle and every other
+        method get).
+    :param spec: evaluate against this spec file, which must be the one the run was trained on
+        (default: the run's own copy, the original checked unchanged where it still exists).
+    :param oracle: the ceiling beside the rates: ``auto`` (the cached one, computed first where
+        the dynamics are known), ``cache`` (only a cached one) or ``off``.
+    :param workers: processes for computing the oracle (default: one per available core).
+    :param write: write the result to the run's ``eval.json`` (default: when it is the run's own
+        evaluation: its episode count, seed 2024 and the task's tolerances).
+    :return: success rates with their intervals and ceilings, steps to reach, failures, ASAP gap.
+    :raises asap_dsl.runs.RunError: the run cannot be evaluated (one sentence).
+    :raises ValueError: an argument out of range (one sentence).
     """
     if oracle not in ("auto", "cache", "off"):
         raise ValueError(f"oracle must be auto, cache or off; got {oracle!r}")

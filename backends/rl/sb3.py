@@ -15,16 +15,18 @@ from typing import Any, Optional
 import numpy as np
 from gymnasium import spaces
 
-__all__ = ["ALGO_CLASSES", "PolicyController", "Scaling", "ScaledVecEnv", "build_model", "load_model"]
+from asap_dsl.checker_common import ALGORITHMS
+
+__all__ = ["PolicyController", "Scaling", "ScaledVecEnv", "build_model", "load_model"]
 
 
-def _algo_classes() -> dict:
-    from stable_baselines3 import A2C, DDPG, PPO, SAC, TD3
+def _algo_class(algo: str):
+    """The stable-baselines3 class of one of the language's algorithms (``sac`` is ``SAC``)."""
+    import stable_baselines3
 
-    return {"sac": SAC, "td3": TD3, "ddpg": DDPG, "ppo": PPO, "a2c": A2C}
-
-
-ALGO_CLASSES = ("sac", "td3", "ddpg", "ppo", "a2c")
+    if algo not in ALGORITHMS:
+        raise ValueError(f"unknown algorithm '{algo}'; choose {', '.join(ALGORITHMS)}")
+    return getattr(stable_baselines3, algo.upper())
 
 
 @dataclass(frozen=True)
@@ -137,7 +139,7 @@ def build_model(algo: str, env, settings: dict[str, Any], seed: int, tensorboard
     of the action half-range; for SAC ``target_entropy_per_action``)."""
     from stable_baselines3.common.noise import NormalActionNoise
 
-    cls = _algo_classes()[algo]
+    cls = _algo_class(algo)
     kw = dict(settings)
     net_arch = kw.pop("net_arch", None)
     noise = kw.pop("action_noise", None)
@@ -156,5 +158,5 @@ def build_model(algo: str, env, settings: dict[str, Any], seed: int, tensorboard
 def load_model(algo: str, path: Path, env=None):
     """Load a model saved by :func:`build_model`'s model (a pickle: only from a run directory the
     user named)."""
-    cls = _algo_classes()[algo]
+    cls = _algo_class(algo)
     return cls.load(str(path), env=env, device="cpu")

@@ -354,18 +354,41 @@ def train(spec: Union[str, Path, Program], task: Optional[str] = None, *, algo: 
           settings: Optional[Mapping[str, Any]] = None, progress: Optional[TrainProgress] = None,
           evaluate: bool = True, eval_episodes: Optional[int] = None, callbacks: Sequence = (),
           time_limit: Optional[float] = None) -> TrainResult:
-    """Train ``task`` of a spec and evaluate the best model; returns a :class:`TrainResult`.
+    """Train ``task`` of a spec with stable-baselines3 and evaluate the best model.
 
     Precedence of settings: these arguments, then the task's ``train { ... }`` block, then the
-    preset (``default`` or ``paper``; :mod:`asap_dsl.backends.rl.presets`). ``out`` is the run
-    directory (default ``runs/<spec>-<task>-<algo>-<reward>-s<seed>``). An existing run is never
-    replaced unless ``force``; ``resume`` continues its checkpoint (with ``steps``, a new total).
-    Ctrl-C or SIGTERM stop the run after a checkpoint: the result's status is ``interrupted``.
-    ``callbacks``: extra stable-baselines3 callbacks (one returning False ends the run early, as
-    finished). ``time_limit``: seconds of training after which the run ends, as finished.
+    preset. Ctrl-C or SIGTERM stop the run after a checkpoint: the result's status is then
+    ``interrupted``, and ``resume=True`` continues it later.
 
-    Raises :class:`asap_dsl.SpecError` (the spec), :class:`ConfigError` (a setting),
-    :class:`asap_dsl.runs.RunError` (the run directory) or ``KeyError`` (an unknown task).
+    :param spec: the spec: a path, or a program already loaded (:func:`asap_dsl.load`).
+    :param task: the task to train (default: the spec's only task).
+    :param algo: the algorithm, one of :data:`asap_dsl.checker_common.ALGORITHMS` (default: the
+        task's ``train`` block, else the preset's, ``sac``).
+    :param reward: the reward, a kind or a kind with settings as the language writes it
+        (``asap``, ``rho(window = 5)``, ``distance``, ...; default: the task's own). A bare kind
+        that is the task's own keeps the task's settings.
+    :param steps: environment steps in total (default: the ``train`` block's, else the
+        preset's; with ``resume``: the new total).
+    :param seed: the run's seed (default: the ``train`` block's, else 0).
+    :param preset: ``default`` or ``paper`` (:mod:`asap_dsl.backends.rl.presets`).
+    :param n_envs: environments stepped together (default: the ``train`` block's, else the preset's).
+    :param out: the run directory (default ``<runs_dir>/<spec>-<task>-<algo>-<reward>-s<seed>``).
+    :param runs_dir: where the default run directory goes.
+    :param resume: continue the run in ``out`` from its checkpoint (same step count, replay
+        buffer and random state); the settings given must agree with the run's.
+    :param force: replace an existing run (never replaced otherwise).
+    :param settings: hyperparameters by their ``train { ... }`` names (over the block and the preset).
+    :param progress: told of the run's start, steps and validations (:class:`TrainProgress`).
+    :param evaluate: evaluate the best model on the seeded evaluation states once finished.
+    :param eval_episodes: evaluation states (default: the ``train`` block's, else 1000).
+    :param callbacks: extra stable-baselines3 callbacks (one returning False ends the run early,
+        as finished).
+    :param time_limit: seconds of training after which the run ends, as finished.
+    :return: the run's directory, configuration, steps, best validation and final evaluation.
+    :raises asap_dsl.SpecError: the spec does not load.
+    :raises ConfigError: a setting cannot be used (one sentence).
+    :raises asap_dsl.runs.RunError: the run directory (exists, changed spec, no checkpoint, ...).
+    :raises KeyError: an unknown task.
     """
     prog = _program(spec)
     cfg = resolve_config(prog, task, algo=algo, reward=reward, steps=steps, seed=seed, preset=preset,
