@@ -7,10 +7,11 @@ from __future__ import annotations
 from dataclasses import asdict, dataclass, field, fields
 from typing import Any, Mapping, Optional
 
+from asap_dsl.checker_common import ALGORITHMS
 from asap_dsl.rewards import check_reward_fits, resolve_reward
 from asap_dsl.sampling import EVAL_SEED
 
-from .presets import ALGORITHMS, OFF_POLICY, get_preset
+from .presets import OFF_POLICY, get_preset
 
 __all__ = ["ConfigError", "TrainConfig", "VALIDATION_SEED", "resolve_config"]
 
