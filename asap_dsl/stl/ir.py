@@ -347,6 +347,26 @@ def cap_past_windows(node: Formula, steps: int) -> Formula:
     return type(node)(iv, cap_past_windows(node.left, steps), cap_past_windows(node.right, steps))
 
 
+class NodeCompiler:
+    """Compiles a formula node by node, a node shared by several parents once: a subclass gives
+    ``_compile_node(node)`` (which calls ``_compile`` on the children) and sets ``_memo = {}``.
+    The memo holds each node with its result, so that ids stay unique while it lives (rewritten
+    nodes, such as :func:`since_unbounded_form`'s, included)."""
+
+    _memo: dict
+
+    def _compile_node(self, node: Formula):
+        raise NotImplementedError
+
+    def _compile(self, node: Formula):
+        hit = self._memo.get(id(node))
+        if hit is not None:
+            return hit[1]
+        out = self._compile_node(node)
+        self._memo[id(node)] = (node, out)
+        return out
+
+
 def since_unbounded_form(node: Since) -> Formula:
     """``node`` over the unbounded strict since only, as the online monitors evaluate it::
 

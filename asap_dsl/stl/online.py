@@ -377,15 +377,14 @@ def _future_name(node) -> Optional[str]:
     return None
 
 
-class _Graph:
+class _Graph(ir.NodeCompiler):
     """A compiled, topologically ordered list of online operators for several causal roots,
     over the ``L * B`` columns of ``ck`` (both lanes in one pass)."""
 
     def __init__(self, roots, ck: _Clock):
         self.ck = ck
         self.ops: list[_Op] = []
-        self.memo: dict[int, tuple[object, _Op]] = {}
-        self.keep: list = []  # rewritten nodes kept alive (ids stay unique)
+        self._memo: dict[int, tuple[object, _Op]] = {}
         self.outputs = [self._compile(r) for r in roots]
         work = [op for op in self.ops if not isinstance(op, _ConstOp)]
         # Atoms depend on the states only: they can run first, or be loaded with precomputed values
@@ -396,14 +395,6 @@ class _Graph:
 
     def _add(self, op) -> _Op:
         self.ops.append(op)
-        return op
-
-    def _compile(self, node) -> _Op:
-        hit = self.memo.get(id(node))
-        if hit is not None:
-            return hit[1]
-        op = self._compile_node(node)
-        self.memo[id(node)] = (node, op)
         return op
 
     def _compile_node(self, node) -> _Op:
@@ -433,7 +424,6 @@ class _Graph:
             core = ir.since_unbounded_form(node)
             if core is node:
                 return self._add(_SinceUnbounded(self._compile(node.left), self._compile(node.right), ck))
-            self.keep.append(core)
             return self._compile(core)
         if isinstance(node, ir.FUTURE_OPERATORS):
             raise ValueError(

@@ -31,7 +31,7 @@ _INF = math.inf
 _F64 = np.dtype(np.float64)
 
 
-class ScalarMonitor(MonitorValues):
+class ScalarMonitor(MonitorValues, ir.NodeCompiler):
     """Online monitor of a causal formula over one trace (see the module docstring)."""
 
     batch = 1
@@ -46,7 +46,6 @@ class ScalarMonitor(MonitorValues):
         self._steps: list[Callable[[int], None]] = []
         self._resets: list[Callable[[], None]] = []
         self._memo: dict[int, tuple[object, int]] = {}
-        self._keep: list = []       # rewritten nodes kept alive (their ids stay unique)
         self._root = self._compile(node)
         self._run = _chain(self._steps)
         self._t = -1
@@ -119,14 +118,6 @@ class ScalarMonitor(MonitorValues):
         self._S.append(math.nan)
         return len(self._R) - 1
 
-    def _compile(self, node) -> int:
-        hit = self._memo.get(id(node))
-        if hit is not None:
-            return hit[1]
-        i = self._compile_node(node)
-        self._memo[id(node)] = (node, i)
-        return i
-
     def _compile_node(self, node) -> int:
         R, S, sat = self._R, self._S, self._track_sat
         if isinstance(node, ir.Atom):
@@ -162,7 +153,6 @@ class ScalarMonitor(MonitorValues):
         if isinstance(node, ir.Since):
             core = ir.since_unbounded_form(node)
             if core is not node:
-                self._keep.append(core)
                 return self._compile(core)
             a, b = self._compile(node.left), self._compile(node.right)
             i = self._slot()
