@@ -1,5 +1,6 @@
-"""Reinforcement learning with stable-baselines3: presets, the training configuration, the SB3 glue
-(observation and action scaling, model building), training runs and their evaluation.
+"""Reinforcement learning with stable-baselines3's API: presets, the training configuration, the
+engines that train (stable-baselines3 on torch, sbx on JAX), the SB3 glue (observation and action
+scaling, model building), training runs and their evaluation.
 
     from asap_dsl.backends.rl import train, evaluate
 
@@ -12,6 +13,7 @@ import importlib
 
 _WHERE = {
     "config": ("VALIDATION_SEED", "ConfigError", "TrainConfig", "resolve_config"),
+    "engines": ("ENGINES", "Engine", "get_engine"),
     "evaluation": ("Evaluation", "LoadedRun", "evaluate", "load_run", "summarise"),
     "presets": ("ALGORITHMS", "DEFAULT", "OFF_POLICY", "PAPER", "PRESETS", "Preset", "get_preset"),
     "sb3": ("PolicyController", "Scaling", "ScaledVecEnv", "build_model", "load_model"),

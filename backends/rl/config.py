@@ -12,6 +12,7 @@ from asap_dsl.rewards import check_reward_fits, resolve_reward
 from asap_dsl.sampling import EVAL_SEED
 
 from .presets import OFF_POLICY, get_preset
+from .engines import REFERENCE, choose_engine
 
 __all__ = ["ConfigError", "TrainConfig", "VALIDATION_SEED", "resolve_config"]
 
@@ -37,6 +38,7 @@ class TrainConfig:
 
     task: str
     algo: str
+    engine: str               # the library that trains it (:mod:`.engines`)
     reward: str
     seed: int
     preset: str
@@ -59,6 +61,7 @@ class TrainConfig:
     @classmethod
     def from_dict(cls, data: Mapping[str, Any]) -> "TrainConfig":
         names = {f.name for f in fields(cls)}
+        data = {"engine": REFERENCE, **data}  # a run from before engines: stable-baselines3 trained it
         missing = names - set(data) - {"time_limit"}
         if missing:
             raise ConfigError(f"the stored configuration lacks {', '.join(sorted(missing))}")
@@ -94,11 +97,13 @@ def _hyper_for(algo: str, values: Mapping[str, Any]) -> dict[str, Any]:
 def resolve_config(prog, task: Optional[str] = None, *, algo: Optional[str] = None, reward: Optional[str] = None,
                    steps: Optional[int] = None, seed: Optional[int] = None, preset: Optional[str] = None,
                    n_envs: Optional[int] = None, settings: Optional[Mapping[str, Any]] = None,
-                   eval_episodes: Optional[int] = None, time_limit: Optional[float] = None) -> TrainConfig:
+                   eval_episodes: Optional[int] = None, time_limit: Optional[float] = None,
+                   engine: Optional[str] = None) -> TrainConfig:
     """Resolve the configuration of training ``task`` of ``prog``.
 
     ``settings`` are hyperparameters by their ``train { ... }`` names (they override the block
-    and the preset). Raises :class:`ConfigError` (one sentence) or ``KeyError`` (unknown task).
+    and the preset). ``engine``: ``sbx`` or ``sb3`` (default: the preset's where it has the
+    algorithm). Raises :class:`ConfigError` (one sentence) or ``KeyError`` (unknown task).
     """
     t = prog.task(task).model  # KeyError with a suggestion on an unknown task
     block = dict(t.train)
@@ -113,6 +118,10 @@ def resolve_config(prog, task: Optional[str] = None, *, algo: Optional[str] = No
 
         sug = closest(algo, ALGORITHMS)
         raise ConfigError(f"unknown algorithm '{algo}'" + (f"; did you mean '{sug}'?" if sug else f"; choose {', '.join(ALGORITHMS)}"))
+    try:
+        engine = choose_engine(engine, p.engine, algo)
+    except ValueError as err:
+        raise ConfigError(str(err)) from None
     try:
         model = resolve_reward(t, reward, dt=prog.system.dt)
         check_reward_fits(t, model)
@@ -144,7 +153,7 @@ def resolve_config(prog, task: Optional[str] = None, *, algo: Optional[str] = No
             hyper["batch_size"] = rollout  # a mini-batch cannot exceed the rollout
     every = max(envs, (total // max(1, p.validations)) // envs * envs)
     return TrainConfig(
-        task=t.name, algo=algo, reward=reward_text, seed=run_seed, preset=p.name, steps=total, n_envs=envs,
+        task=t.name, algo=algo, engine=engine, reward=reward_text, seed=run_seed, preset=p.name, steps=total, n_envs=envs,
         torch_threads=p.torch_threads, observation_scaling=p.observation_scaling, action_scaling=p.action_scaling,
         # With the time left in the observation the deadline is part of the state: an episode's
         # end is a true terminal (no bootstrapping past it). Without it the agent cannot tell, and

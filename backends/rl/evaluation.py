@@ -28,7 +28,8 @@ from asap_dsl.sampling import EVAL_SEED, task_states
 from asap_dsl.stats import asap_gap, rate, steps_summary
 
 from .config import ConfigError, TrainConfig
-from .sb3 import PolicyController, Scaling, load_model
+from .engines import get_engine
+from .sb3 import PolicyController, Scaling
 
 __all__ = ["Evaluation", "evaluate", "load_run", "summarise"]
 
@@ -187,7 +188,7 @@ def load_run(path: Union[str, Path], spec: Union[str, Path, None] = None) -> Loa
         raise RunError(f"{run.path}: its task '{config.task}' is not in its spec")
     model_path = run.require_model()
     try:
-        model = load_model(config.algo, model_path)
+        model = get_engine(config.engine).load(config.algo, model_path)
     except Exception as err:  # noqa: BLE001 — a damaged or foreign zip: one line, not a trace
         raise RunError(f"{model_path}: cannot load the model ({type(err).__name__}: {str(err).splitlines()[0] if str(err) else ''})") from None
     scaling = Scaling.for_system(prog.system, config.observation_scaling, config.action_scaling,

@@ -12,7 +12,8 @@ strongest: ``asapc train`` flags, the task's ``train { ... }`` block, the preset
 * ``default`` — what reached the oracle's ceiling soonest in wall time on a 2-core CPU
   (``benchmarks/train.py`` measures it against ``paper`` side by side; docs/training.md gives the
   evidence): several environments stepped together in numpy, small networks, observations
-  scaled into [-1, 1] from the init box, actions scaled into [-1, 1].
+  scaled into [-1, 1] from the init box, actions scaled into [-1, 1], and the ``sbx`` engine (JAX)
+  for the algorithms it has (:mod:`.engines`; A2C stays on stable-baselines3).
 """
 
 from __future__ import annotations
@@ -45,6 +46,7 @@ class Preset:
     validation_episodes: int
     validations: int          # periodic validations over a run
     algos: Mapping[str, Mapping[str, Any]] = field(default_factory=dict)
+    engine: str = "sb3"       # the training engine where it has the algorithm (stable-baselines3 otherwise)
 
     def settings(self, algo: str) -> dict[str, Any]:
         return dict(self.algos[algo])
@@ -67,6 +69,7 @@ PAPER = Preset(
         "ppo": {"learning_rate": 3e-4, "n_steps": 2048, "gamma": 0.99, "vf_coef": 0.5, "max_grad_norm": 0.5,
                 "gae_lambda": 0.95, "n_epochs": 10, "batch_size": 64, "net_arch": [64, 64]},
     },
+    engine="sb3",
 )
 
 _FAST_OFF = {"buffer_size": 1_000_000, "gamma": 0.99, "tau": 0.005, "train_freq": 1, "gradient_steps": 1,
@@ -87,6 +90,7 @@ DEFAULT = Preset(
         "ppo": {"learning_rate": 3e-4, "n_steps": 256, "gamma": 0.99, "vf_coef": 0.5, "max_grad_norm": 0.5,
                 "gae_lambda": 0.95, "n_epochs": 10, "batch_size": 256, "net_arch": [64, 64]},
     },
+    engine="sbx",
 )
 
 PRESETS: dict[str, Preset] = {p.name: p for p in (DEFAULT, PAPER)}

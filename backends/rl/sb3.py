@@ -133,26 +133,33 @@ class PolicyController:
         return self.scaling.action(a)
 
 
-def build_model(algo: str, env, settings: dict[str, Any], seed: int, tensorboard_log: Optional[str] = None):
-    """A fresh stable-baselines3 model; ``settings`` are the resolved hyperparameters (with
-    ``net_arch``; for TD3/DDPG ``action_noise``, the std of Gaussian exploration noise as a fraction
-    of the action half-range; for SAC ``target_entropy_per_action``)."""
+def model_kwargs(algo: str, action_space: spaces.Box, settings: dict[str, Any]) -> dict[str, Any]:
+    """The keywords of a model class with stable-baselines3's API (its own or sbx's) for the
+    resolved hyperparameters ``settings``: those of the class, plus ``net_arch`` (into
+    ``policy_kwargs``), for TD3/DDPG ``action_noise`` (the std of Gaussian exploration noise as a
+    fraction of the action half-range) and for SAC ``target_entropy_per_action``."""
     from stable_baselines3.common.noise import NormalActionNoise
 
-    cls = _algo_class(algo)
     kw = dict(settings)
     net_arch = kw.pop("net_arch", None)
     noise = kw.pop("action_noise", None)
     per_action = kw.pop("target_entropy_per_action", None)
-    if per_action is not None and algo == "sac":  # SB3's "auto" is -1 per action dimension
-        kw["target_entropy"] = float(per_action) * env.action_space.shape[0]
+    m = action_space.shape[0]
+    if per_action is not None and algo == "sac":  # "auto" is -1 per action dimension
+        kw["target_entropy"] = float(per_action) * m
     if noise:
-        m = env.action_space.shape[0]
-        half = (env.action_space.high - env.action_space.low) / 2.0
+        half = (action_space.high - action_space.low) / 2.0
         kw["action_noise"] = NormalActionNoise(np.zeros(m), float(noise) * half.astype(np.float64))
-    policy_kwargs = {"net_arch": list(net_arch)} if net_arch is not None else None
-    return cls("MlpPolicy", env, seed=seed, device="cpu", policy_kwargs=policy_kwargs,
-               tensorboard_log=tensorboard_log, verbose=0, **kw)
+    kw["policy_kwargs"] = {"net_arch": list(net_arch)} if net_arch is not None else {}
+    return kw
+
+
+def build_model(algo: str, env, settings: dict[str, Any], seed: int, tensorboard_log: Optional[str] = None):
+    """A fresh stable-baselines3 model on torch; ``settings`` are the resolved hyperparameters
+    (:func:`model_kwargs`). The engine of a run builds it: :mod:`.engines`."""
+    cls = _algo_class(algo)
+    return cls("MlpPolicy", env, seed=seed, device="cpu", tensorboard_log=tensorboard_log, verbose=0,
+               **model_kwargs(algo, env.action_space, settings))
 
 
 def load_model(algo: str, path: Path, env=None):

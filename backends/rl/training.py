@@ -1,8 +1,8 @@
 """Training runs: ``asap_dsl.train`` and ``asapc train``.
 
-A run trains one task of a spec with stable-baselines3, validates the policy periodically on
-initial states of its own seed (:data:`~asap_dsl.backends.rl.config.VALIDATION_SEED`, never the
-evaluation seed) and keeps the best model, writes curves (CSV and TensorBoard), checkpoints the
+A run trains one task of a spec with an engine of :mod:`.engines` (stable-baselines3, or sbx: its
+API on JAX), validates the policy periodically on initial states of its own seed
+(:data:`~asap_dsl.backends.rl.config.VALIDATION_SEED`, never the evaluation seed) and keeps the best model, writes curves (CSV and TensorBoard), checkpoints the
 model, replay buffer and random state periodically and on Ctrl-C / SIGTERM, and finally evaluates
 the best model on the seeded evaluation states. ``resume=True`` continues a checkpoint with the
 same step count, replay buffer and random state. The directory layout is :mod:`asap_dsl.runs`.
@@ -32,7 +32,8 @@ from asap_dsl.sampling import task_states
 
 from .config import ConfigError, TrainConfig, resolve_config
 from .presets import OFF_POLICY
-from .sb3 import PolicyController, Scaling, ScaledVecEnv, build_model, load_model
+from .engines import Engine, get_engine
+from .sb3 import PolicyController, Scaling, ScaledVecEnv
 
 __all__ = ["TrainProgress", "TrainResult", "train", "validation_score"]
 
@@ -100,23 +101,22 @@ class _StopFlag:
 
 
 # ------------------------------------------------------------------------------------ checkpoints
-def _rng_state(venv) -> dict:
-    import torch
+def _rng_state(venv, model, engine: Engine) -> dict:
+    # "actions": the random actions before learning starts (the model re-seeds them on loading).
+    return {"python": random.getstate(), "numpy": np.random.get_state(), "env": venv.core.rng.bit_generator.state,
+            "actions": model.action_space.np_random.bit_generator.state, **engine.rng_state(model)}
 
-    return {"python": random.getstate(), "numpy": np.random.get_state(), "torch": torch.get_rng_state(),
-            "env": venv.core.rng.bit_generator.state}
 
-
-def _set_rng_state(state: dict, venv) -> None:
-    import torch
-
+def _set_rng_state(state: dict, venv, model, engine: Engine) -> None:
     random.setstate(state["python"])
     np.random.set_state(state["numpy"])
-    torch.set_rng_state(state["torch"])
     venv.core.rng.bit_generator.state = state["env"]
+    if "actions" in state:  # checkpoints written before it was kept lack it
+        model.action_space.np_random.bit_generator.state = state["actions"]
+    engine.set_rng_state(model, state)
 
 
-def _save_checkpoint(run: RunDir, model, venv, algo: str, extra: dict) -> None:
+def _save_checkpoint(run: RunDir, model, venv, algo: str, extra: dict, engine: Engine) -> None:
     """Write the checkpoint into a fresh directory, then swap it in (the old one survives until
     the new one is complete)."""
     final = run.checkpoint_dir
@@ -128,7 +128,7 @@ def _save_checkpoint(run: RunDir, model, venv, algo: str, extra: dict) -> None:
     if algo in OFF_POLICY:
         model.save_replay_buffer(str(tmp / "replay.pkl"))
     with open(tmp / "state.pkl", "wb") as f:
-        pickle.dump({"rng": _rng_state(venv), **extra}, f)
+        pickle.dump({"rng": _rng_state(venv, model, engine), **extra}, f)
     atomic_write_json(tmp / "state.json", {k: v for k, v in extra.items() if k != "curves"})
     shutil.rmtree(old, ignore_errors=True)
     if final.exists():
@@ -199,6 +199,7 @@ class _Session:
         from asap_dsl.env import make_vec_env
 
         self.prog, self.cfg, self.run, self.progress = prog, cfg, run, progress
+        self.engine = get_engine(cfg.engine)
         self.extra_callbacks = list(callbacks)
         if cfg.torch_threads > 0:
             torch.set_num_threads(cfg.torch_threads)
@@ -262,17 +263,17 @@ class _Session:
                 "curves": self.curves, "next_validation": self.next_validation}
 
     def checkpoint(self, model) -> None:
-        _save_checkpoint(self.run, model, self.raw_env, self.cfg.algo, self.state(model))
+        _save_checkpoint(self.run, model, self.raw_env, self.cfg.algo, self.state(model), self.engine)
         self.run.update_manifest(steps_done=int(model.num_timesteps), seconds=round(self.seconds, 3))
         self.last_checkpoint = time.perf_counter()
 
     def restore(self, directory: Path):
         with open(directory / "state.pkl", "rb") as f:
             state = pickle.load(f)
-        model = load_model(self.cfg.algo, directory / "model.zip", env=self.env)
+        model = self.engine.load(self.cfg.algo, directory / "model.zip", env=self.env)
         if self.cfg.algo in OFF_POLICY and (directory / "replay.pkl").is_file():
             model.load_replay_buffer(str(directory / "replay.pkl"))
-        _set_rng_state(state["rng"], self.raw_env)
+        _set_rng_state(state["rng"], self.raw_env, model, self.engine)
         self.best, self.curves = state["best"], list(state["curves"])
         self.next_validation = int(state["next_validation"])
         self.seconds_before = float(state["seconds"])
@@ -353,7 +354,7 @@ def train(spec: Union[str, Path, Program], task: Optional[str] = None, *, algo: 
           runs_dir: Union[str, Path] = "runs", resume: bool = False, force: bool = False,
           settings: Optional[Mapping[str, Any]] = None, progress: Optional[TrainProgress] = None,
           evaluate: bool = True, eval_episodes: Optional[int] = None, callbacks: Sequence = (),
-          time_limit: Optional[float] = None) -> TrainResult:
+          time_limit: Optional[float] = None, engine: Optional[str] = None) -> TrainResult:
     """Train ``task`` of a spec with stable-baselines3 and evaluate the best model.
 
     Precedence of settings: these arguments, then the task's ``train { ... }`` block, then the
@@ -392,7 +393,8 @@ def train(spec: Union[str, Path, Program], task: Optional[str] = None, *, algo: 
     """
     prog = _program(spec)
     cfg = resolve_config(prog, task, algo=algo, reward=reward, steps=steps, seed=seed, preset=preset,
-                         n_envs=n_envs, settings=settings, eval_episodes=eval_episodes, time_limit=time_limit)
+                         n_envs=n_envs, settings=settings, eval_episodes=eval_episodes, time_limit=time_limit,
+                         engine=engine)
     run = RunDir(out if out is not None else Path(runs_dir) / default_run_name(prog.file, cfg.task, cfg.algo,
                                                                              cfg.reward, cfg.seed))
     source_hash = spec_hash(prog.source)
@@ -402,8 +404,8 @@ def train(spec: Union[str, Path, Program], task: Optional[str] = None, *, algo: 
             raise RunError(f"{run.path}: {prog.file} has changed since this run was trained; "
                            "train a new run (or --force to replace this one)")
         stored = TrainConfig.from_dict(manifest["config"])
-        given = {"task": task, "algo": algo, "reward": reward, "seed": seed, "preset": preset, "n_envs": n_envs,
-                 "settings": dict(settings or {})}
+        given = {"task": task, "algo": algo, "engine": engine, "reward": reward, "seed": seed, "preset": preset,
+                 "n_envs": n_envs, "settings": dict(settings or {})}
         conflicts = _explicit_conflicts(stored, cfg, given)
         if conflicts:
             raise RunError(f"{run.path}: --resume continues the run as it was configured; it differs in "
@@ -439,7 +441,8 @@ def train(spec: Union[str, Path, Program], task: Optional[str] = None, *, algo: 
             if cfg.steps <= int(model.num_timesteps) and run.read_manifest().get("status") == "finished":
                 return _finished(run, cfg, session, evaluate)
         else:
-            model = build_model(cfg.algo, session.env, cfg.hyper, cfg.seed, tensorboard_log=str(run.tensorboard_dir))
+            model = session.engine.build(cfg.algo, session.env, cfg.hyper, cfg.seed,
+                                         tensorboard_log=str(run.tensorboard_dir))
         run.update_manifest(status="running", config=cfg.to_dict())
         status = session.learn(model)
     run.update_manifest(status=status, steps_done=int(model.num_timesteps), seconds=round(session.seconds, 3),
