@@ -120,11 +120,11 @@ def compare_command(args: argparse.Namespace, out: Optional[TextIO] = None, err:
     check_workers(workers, args.force_workers)
     try:
         jobs = plan(args.files, args.tasks, args.rewards, args.algos, args.seeds, args.preset, args.steps)
-        from asap_dsl.backends.compare.sweep import _config
+        from asap_dsl.backends.compare.sweep import job_config
 
         progs = {spec: asap_dsl.load(spec) for spec in {j.spec for j in jobs}}
         for j in jobs:  # every reward and setting checked before anything trains
-            _config(j, progs[j.spec])
+            job_config(j, progs[j.spec])
     except asap_dsl.SpecError as e:
         err.write(f"{e.report()}\n")
         return 1

@@ -21,7 +21,7 @@ from typing import Any, Callable, Optional, Sequence
 
 from asap_dsl.runs import RunDir, RunError, default_run_name, read_json, spec_hash
 
-__all__ = ["Job", "JobResult", "SweepInterrupted", "execute", "plan", "run_job"]
+__all__ = ["Job", "JobResult", "SweepInterrupted", "execute", "job_config", "job_dir", "plan", "run_job"]
 
 
 @dataclass(frozen=True)
@@ -35,14 +35,13 @@ class Job:
     seed: int
     preset: str = "default"
     steps: Optional[int] = None
-    engine: Optional[str] = None  # None: the preset's
 
     def label(self) -> str:
         return f"{Path(self.spec).stem} {self.task} {self.algo} {self.reward} s{self.seed}"
 
 
 def plan(specs: Sequence[str], tasks: Optional[Sequence[str]], rewards: Sequence[str], algos: Sequence[str],
-         seeds: int, preset: str = "default", steps: Optional[int] = None, engine: Optional[str] = None) -> list[Job]:
+         seeds: int, preset: str = "default", steps: Optional[int] = None) -> list[Job]:
     """The runs the paper's tables need: every reward with the first algorithm (Table 1), and every
     algorithm with the first reward (Table 2), for every task of every spec and every seed."""
     import asap_dsl
@@ -57,17 +56,19 @@ def plan(specs: Sequence[str], tasks: Optional[Sequence[str]], rewards: Sequence
             pairs = [(r, algos[0]) for r in rewards] + [(rewards[0], a) for a in algos[1:]]
             for reward, algo in pairs:
                 for seed in range(seeds):
-                    job = Job(str(spec), t, algo, reward, seed, preset, steps, engine)
+                    job = Job(str(spec), t, algo, reward, seed, preset, steps)
                     if job not in jobs:
                         jobs.append(job)
     return jobs
 
 
-def _config(job: Job, prog):
+def job_config(job: Job, prog):
+    """The :class:`~asap_dsl.backends.rl.config.TrainConfig` of ``job`` on its program ``prog``;
+    raises ``ConfigError`` for a reward or setting the task cannot take (checked before a sweep)."""
     from ..rl.config import resolve_config
 
     return resolve_config(prog, job.task, algo=job.algo, reward=job.reward, steps=job.steps, seed=job.seed,
-                          preset=job.preset, engine=job.engine)
+                          preset=job.preset)
 
 
 def job_dir(runs_dir: Path, job: Job, prog, cfg) -> Path:
@@ -119,18 +120,17 @@ def run_job(job: Job, runs_dir: str, threads: int = 1) -> dict:
     if threads > 0:
         torch.set_num_threads(threads)
     prog = asap_dsl.load(job.spec)
-    cfg = _config(job, prog)
+    cfg = job_config(job, prog)
     path = job_dir(Path(runs_dir), job, prog, cfg)
     state = _state(path)
     trained = False
     if state != "finished":
         try:
             res = train(prog, job.task, algo=job.algo, reward=job.reward, steps=job.steps, seed=job.seed,
-                        preset=job.preset, engine=job.engine, out=path, resume=state == "resumable",
-                        force=state == "broken")
+                        preset=job.preset, out=path, resume=state == "resumable", force=state == "broken")
         except RunError:  # a checkpoint that cannot be resumed: start that run again
             res = train(prog, job.task, algo=job.algo, reward=job.reward, steps=job.steps, seed=job.seed,
-                        preset=job.preset, engine=job.engine, out=path, force=True)
+                        preset=job.preset, out=path, force=True)
         trained = True
         if res.interrupted:
             return JobResult(job, str(path), "interrupted", res.seconds, res.steps, True).to_dict()
