@@ -35,13 +35,14 @@ class Job:
     seed: int
     preset: str = "default"
     steps: Optional[int] = None
+    engine: Optional[str] = None  # None: the preset's
 
     def label(self) -> str:
         return f"{Path(self.spec).stem} {self.task} {self.algo} {self.reward} s{self.seed}"
 
 
 def plan(specs: Sequence[str], tasks: Optional[Sequence[str]], rewards: Sequence[str], algos: Sequence[str],
-         seeds: int, preset: str = "default", steps: Optional[int] = None) -> list[Job]:
+         seeds: int, preset: str = "default", steps: Optional[int] = None, engine: Optional[str] = None) -> list[Job]:
     """The runs the paper's tables need: every reward with the first algorithm (Table 1), and every
     algorithm with the first reward (Table 2), for every task of every spec and every seed."""
     import asap_dsl
@@ -56,7 +57,7 @@ def plan(specs: Sequence[str], tasks: Optional[Sequence[str]], rewards: Sequence
             pairs = [(r, algos[0]) for r in rewards] + [(rewards[0], a) for a in algos[1:]]
             for reward, algo in pairs:
                 for seed in range(seeds):
-                    job = Job(str(spec), t, algo, reward, seed, preset, steps)
+                    job = Job(str(spec), t, algo, reward, seed, preset, steps, engine)
                     if job not in jobs:
                         jobs.append(job)
     return jobs
@@ -68,7 +69,7 @@ def job_config(job: Job, prog):
     from ..rl.config import resolve_config
 
     return resolve_config(prog, job.task, algo=job.algo, reward=job.reward, steps=job.steps, seed=job.seed,
-                          preset=job.preset)
+                          preset=job.preset, engine=job.engine)
 
 
 def job_dir(runs_dir: Path, job: Job, prog, cfg) -> Path:
@@ -127,10 +128,11 @@ def run_job(job: Job, runs_dir: str, threads: int = 1) -> dict:
     if state != "finished":
         try:
             res = train(prog, job.task, algo=job.algo, reward=job.reward, steps=job.steps, seed=job.seed,
-                        preset=job.preset, out=path, resume=state == "resumable", force=state == "broken")
+                        preset=job.preset, engine=job.engine, out=path, resume=state == "resumable",
+                        force=state == "broken")
         except RunError:  # a checkpoint that cannot be resumed: start that run again
             res = train(prog, job.task, algo=job.algo, reward=job.reward, steps=job.steps, seed=job.seed,
-                        preset=job.preset, out=path, force=True)
+                        preset=job.preset, engine=job.engine, out=path, force=True)
         trained = True
         if res.interrupted:
             return JobResult(job, str(path), "interrupted", res.seconds, res.steps, True).to_dict()
