@@ -21,6 +21,7 @@ import numpy as np
 
 from asap_dsl.limits import LIMITS
 from asap_dsl.diagnostics import SpecError
+from asap_dsl.formatting import percent, steps_text
 from asap_dsl.program import Program, loads, read_source
 from asap_dsl.rollout import Evaluator, RolloutResult
 from asap_dsl.runs import RunDir, RunError, atomic_write_json, spec_hash
@@ -71,8 +72,8 @@ class Evaluation:
 
     def render(self) -> str:
         """The table a user reads: rate, interval and ceiling per tolerance, then the rest."""
-        def pct(x):
-            return "  n/a " if x is None else f"{100 * x:5.1f}%"
+        def pct(x):  # a column five wide, and its percent sign
+            return percent(x, 5, missing="  n/a ")
 
         lines = [f"{self.spec_file}: task {self.task}, {self.method}: {self.episodes} initial states (seed {self.seed}), "
                  f"deterministic policy, {self.seconds:.2f} s"]
@@ -95,8 +96,7 @@ class Evaluation:
         s = self.steps
         lines.append("")
         if s.get("reached"):
-            lines.append(f"  steps to reach ({s['reached']} states): min {s['min']:.0f}, 25% {s['p25']:.0f}, "
-                         f"median {s['median']:.0f}, 75% {s['p75']:.0f}, max {s['max']:.0f}, mean {s['mean']:.2f}")
+            lines.append(f"  steps to reach ({s['reached']} states): {steps_text(s)}")
         else:
             lines.append("  steps to reach: no state reached the goal")
         f = self.failures
