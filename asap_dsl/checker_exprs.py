@@ -412,7 +412,7 @@ class Conditions:
 
         scalar = scalar_comparison(e.left, e.right, e.op, symbols, fallback)
         return ir.Atom(span_text(self.lines, e.span), rho, satisfied, (bounds.lo, bounds.hi), margin=margin,
-                       scalar=scalar)
+                       op=e.op, scalar=scalar)
 
     def formula_ref(self, e: ast.Name, causal_clause: Optional[str]) -> ir.Formula:
         kind = self.s.kinds.get(e.id, (None,))[0]

@@ -62,6 +62,9 @@ class Atom:
     region: Optional[str] = None
     # A comparison's margin as an expression (asap_dsl.ast), for solvers that need it symbolically.
     margin: Optional[object] = field(default=None, compare=False, repr=False)
+    # A comparison's operator (<, <=, >, >=), which with the margin gives its Boolean value
+    # (the compiled step needs both); None for a region atom.
+    op: Optional[str] = field(default=None, compare=False, repr=False)
     # ``row -> (robustness, satisfied)`` on one state of Python floats (the batch-1 monitor);
     # None: the vectorised functions are used on a batch of one.
     scalar: Optional[Callable] = field(default=None, compare=False, repr=False)
