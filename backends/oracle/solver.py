@@ -124,74 +124,6 @@ def run(prog, task: Optional[str] = None, episodes: int = 1000, seed: int = EVAL
         states: Optional[np.ndarray] = None, ipopt_options: Optional[dict] = None,
         restarts: Optional[int] = None, interval_bound: bool = True,
         time_limit: float = STATE_TIME_LIMIT, progress: Optional[Callable[[int], None]] = None) -> OracleReport:
-    """The oracle over ``episodes`` evaluation states (or the given ``states``).
-
-    ``restarts`` / ``interval_bound``: see :class:`Oracle` (defaults: :data:`RESTARTS` extra
-    initial guesses on non-linear systems, and the interval lower bound there).
-
-    ``workers > 1`` splits the nearest-neighbour tour into contiguous chunks solved in separate
-    processes (each builds its own solvers; about eight chunks per worker, so that the work
-    stays balanced and progress is seen). ``time_limit``: seconds of search per state, then
-    ``timeout``. ``progress(k)`` is called as k more states are done.
-    """
-    start = time.perf_counter()
-    oracle = Oracle(prog, task, ipopt_options, restarts, interval_bound, time_limit)  # validates system and task up front
-    t = oracle.task.model
-    if states is None:
-        states = task_states(prog.system, t, episodes, seed=seed)
-        used_seed: Optional[int] = seed
-    else:
-        used_seed = None
-    states = np.asarray(states, float).reshape(-1, oracle.n)
-    workers = max(1, min(int(workers), len(states)))
-    if workers == 1:
-        results = oracle.solve_many(states, progress=progress)
-    else:
-        import multiprocessing as mp
-
-        order = nearest_neighbour_order(states, prog.system)
-        chunks = np.array_split(np.asarray(order), min(len(states), 8 * workers))
-        payloads = [(prog.source, prog.file, oracle.task_name, states[c], [int(i) for i in c], ipopt_options,
-                     restarts, interval_bound, time_limit) for c in chunks if len(c)]
-        method = "fork" if "fork" in mp.get_all_start_methods() else "spawn"
-        parts = []
-        with mp.get_context(method).Pool(workers) as pool:
-            for part in pool.imap_unordered(_worker, payloads):
-                parts.append(part)
-                if progress is not None:
-                    progress(len(part))
-        by_index = {d["index"]: StateResult.from_dict(d) for part in parts for d in part}
-        results = [by_index[i] for i in range(len(states))]
-        for r in results:  # trajectories are not shipped back: replay here (cheap)
-            if r.actions is not None:
-                r.trajectory, _ = oracle.replay(r.x0, r.actions)
-    return OracleReport(prog.file, oracle.task_name, prog.system.name, oracle.label, oracle.deadline,
-                        oracle.tolerances, used_seed, results, time.perf_counter() - start, workers)
-
-
-# --------------------------------------------------------------------------- drivers
-_WORKER_ORACLES: dict = {}  # in a worker process: one Oracle (and its built solvers) per setting
-
-
-def _worker(payload):
-    """Process entry: re-load the spec from its text (programs hold compiled closures), once per
-    process and setting: the chunks a worker solves share its solvers and warm starts."""
-    import asap_dsl
-
-    source, name, task, states, indices, ipopt, restarts, interval_bound, time_limit = payload
-    key = (source, name, task, repr(ipopt), restarts, interval_bound, time_limit)
-    oracle = _WORKER_ORACLES.get(key)
-    if oracle is None:
-        _WORKER_ORACLES.clear()
-        oracle = _WORKER_ORACLES[key] = Oracle(asap_dsl.loads(source, name), task, ipopt, restarts, interval_bound,
-                                               time_limit)
-    return [r.to_dict(with_actions=True) for r in oracle.solve_many(states, indices)]
-
-
-def run(prog, task: Optional[str] = None, episodes: int = 1000, seed: int = EVAL_SEED, workers: int = 1,
-        states: Optional[np.ndarray] = None, ipopt_options: Optional[dict] = None,
-        restarts: Optional[int] = None, interval_bound: bool = True,
-        time_limit: float = STATE_TIME_LIMIT, progress: Optional[Callable[[int], None]] = None) -> OracleReport:
     """The oracle's minimum time from each of ``episodes`` seeded initial states (or the given
     ``states``) of one task.
 
@@ -202,7 +134,8 @@ def run(prog, task: Optional[str] = None, episodes: int = 1000, seed: int = EVAL
     :param seed: the seed of those states (default 2024, the states every method is evaluated on).
     :param workers: processes to solve in. More than one splits the nearest-neighbour tour into
         contiguous chunks, about eight per worker so that the work stays balanced and progress is
-        seen; each process builds its own solvers. The results do not depend on it.
+        seen; each process builds its own solvers and warm-starts along its own chunks (``exact``
+        minima do not depend on it; ``local`` ones may).
     :param states: the initial states ``[k, n]`` themselves (the report's seed is then None).
     :param ipopt_options: ``nlpsol`` options over :data:`asap_dsl.backends.oracle.nlp.IPOPT_OPTIONS`.
     :param restarts: extra initial guesses per horizon before it is declared infeasible (default
