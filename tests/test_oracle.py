@@ -480,3 +480,26 @@ def test_the_default_is_one_worker_per_core():
     add_oracle_arguments(p)
     assert p.parse_args(["x.asap"]).workers is None  # resolved to available_cores() when run
     assert available_cores() >= 1
+
+
+def test_affine_probe_reads_an_affine_map_with_and_without_actions():
+    from asap_dsl.dynamics import affine_probe
+
+    A0, B0, c0 = np.array([[1.0, 2.0], [0.0, -1.0], [3.0, 0.5]]), np.array([[1.0], [0.0], [-2.0]]), np.array([0.5, 0.0, 1.0])
+    A, B, c = affine_probe(lambda x, u: x @ A0.T + u @ B0.T + c0, 2, 1)
+    assert np.allclose(A, A0) and np.allclose(B, B0) and np.allclose(c, c0)
+    A, B, c = affine_probe(lambda x, u: x @ A0.T + c0, 2, 0)  # no actions: B is [k, 0]
+    assert np.allclose(A, A0) and B.shape == (3, 0) and np.allclose(c, c0)
+
+
+def test_the_normal_form_is_typed_records():
+    from asap_dsl.backends.oracle.goals import AllOf, AnyOf, Constant, Literal, dnf, normal
+
+    prog = asap_dsl.loads(DOUBLE_INTEGRATOR_MAP.replace("asap in goal", "asap historically[0, 2] in goal"))
+    f = normal(prog.task("reach").model.asap, 5)
+    assert isinstance(f, AllOf) and [(g.positive, g.back) for g in f.parts] == [(True, 0), (True, 1), (True, 2)]
+    assert all(isinstance(g, Literal) and g.atom.region == "goal" for g in f.parts)
+    assert isinstance(normal(prog.task("reach").model.asap, 1), AllOf)  # the window cut at step 0
+    neg = normal(prog.task("reach").model.asap, 5, positive=False)  # not historically: once not
+    assert isinstance(neg, AnyOf) and len(dnf(neg)) == 3 and not any(lit.positive for c in dnf(neg) for lit in c)
+    assert dnf(Constant(True)) == [[]] and dnf(Constant(False)) == []
