@@ -121,5 +121,3 @@ def _a(word: str) -> str:
     return ("an " if word[:1] in "aeiou" else "a ") + word
 
 
-def _fmt(x: float) -> str:
-    return f"{x:.6g}"

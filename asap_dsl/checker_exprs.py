@@ -11,12 +11,13 @@ import numpy as np
 
 from . import ast
 from .checker_common import (ACTION, CONST, FORMULA, LET, REGION, STATE, _FUTURE_TO_PAST, _MAX_STEPS, CheckState, _a,
-                             _fmt, _Unresolved, dependency_order, each)
+                             _Unresolved, dependency_order, each)
 from .diagnostics import Span, span_text
 from .diagnostics import closest as _closest
 from .domains import DomainChecker
 from .expr import (BUILTIN_CONSTANTS, FUNCTION_ARITY, Symbols, compile_scalar, evaluate_constant, interval_range,
                    nodes_in, scalar_comparison)
+from .formatting import number
 from .intervals import Interval
 from .limits import LIMITS
 from .model import FormulaModel, RegionModel
@@ -166,15 +167,15 @@ class Numbers:
         and SB3 stores rewards as float32 (at most about 3.4e38)."""
         value = self.constant(e, what)
         if not abs(value) <= FLOAT32_MAX:
-            self.d.add("E117", f"{what} must be a finite number within ±3.4e38 (a float32 reward), not {_fmt(value)}", e.span)
+            self.d.add("E117", f"{what} must be a finite number within ±3.4e38 (a float32 reward), not {number(value)}", e.span)
             raise _Unresolved
         return value
 
     def range_(self, r: ast.Range, what: str) -> tuple[float, float]:
         lo, hi = each(lambda e: self.constant(e, what), (r.lo, r.hi))
         if lo > hi:
-            self.d.add("E105", f"{what} [{_fmt(lo)}, {_fmt(hi)}] has its lower bound above its upper bound", r.span,
-                       hint=f"write [{_fmt(hi)}, {_fmt(lo)}]")
+            self.d.add("E105", f"{what} [{number(lo)}, {number(hi)}] has its lower bound above its upper bound", r.span,
+                       hint=f"write [{number(hi)}, {number(lo)}]")
             raise _Unresolved
         return lo, hi
 
@@ -188,11 +189,11 @@ class Numbers:
             return None
         if d.unit == "steps":
             if not float(d.value).is_integer():
-                self.d.add("E106", f"{what} {_fmt(d.value)} is not a whole number of steps", d.span,
+                self.d.add("E106", f"{what} {number(d.value)} is not a whole number of steps", d.span,
                            hint="give a whole number of steps, or seconds with a unit such as 1.5s")
                 raise _Unresolved
             if d.value > _MAX_STEPS:
-                self.d.add("E117", f"{what} {_fmt(d.value)} is more than {_MAX_STEPS:.0e} steps", d.span)
+                self.d.add("E117", f"{what} {number(d.value)} is more than {_MAX_STEPS:.0e} steps", d.span)
                 raise _Unresolved
             return int(d.value)
         seconds = d.value / 1000.0 if d.unit == "ms" else d.value
@@ -202,11 +203,11 @@ class Numbers:
             raise _Unresolved
         n = seconds / dt
         if not math.isfinite(n) or n > _MAX_STEPS:
-            self.d.add("E117", f"{what} {_fmt(d.value)}{d.unit} is more than {_MAX_STEPS:.0e} steps of dt = {_fmt(dt)}", d.span)
+            self.d.add("E117", f"{what} {number(d.value)}{d.unit} is more than {_MAX_STEPS:.0e} steps of dt = {number(dt)}", d.span)
             raise _Unresolved
         if abs(n - round(n)) > 1e-9 * max(1.0, abs(n)):
-            self.d.add("E106", f"{what} {_fmt(d.value)}{d.unit} is {n:.6g} steps of dt = {_fmt(dt)}, not a whole number",
-                       d.span, hint=f"use a multiple of {_fmt(dt)}s")
+            self.d.add("E106", f"{what} {number(d.value)}{d.unit} is {number(n)} steps of dt = {number(dt)}, not a whole number",
+                       d.span, hint=f"use a multiple of {number(dt)}s")
             raise _Unresolved
         return int(round(n))
 

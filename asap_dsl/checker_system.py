@@ -8,11 +8,12 @@ from typing import Optional
 
 from . import ast
 from .checker_common import (ACTION, CONST, FORMULA, INTEGRATORS, LET, REGION, STATE, SYSTEM, TASK, CheckState, _a,
-                             _fmt, _Unresolved, dependency_order)
+                             _Unresolved, dependency_order)
 from .checker_exprs import Numbers
 from .diagnostics import Span
 from .diagnostics import closest as _closest
 from .expr import compile_batched, names_in
+from .formatting import number
 from .limits import LIMITS
 from .model import ActionVar, Integrator, RegionModel, StateVar, SystemModel
 from .rewards import FLOAT32_MAX
@@ -91,7 +92,7 @@ class SystemChecks:
                     self.d.add("E117", f"the bounds of action '{a.name}' must be finite", a.bounds.span)
                 elif not (abs(lo) <= FLOAT32_MAX and abs(hi) <= FLOAT32_MAX):  # beyond, the action space is ±inf
                     self.d.add("E117", f"the bounds of action '{a.name}' must lie within ±3.4e38: an agent's actions "
-                               f"are float32, and [{_fmt(lo)}, {_fmt(hi)}] is not", a.bounds.span)
+                               f"are float32, and [{number(lo)}, {number(hi)}] is not", a.bounds.span)
             except _Unresolved:
                 lo, hi = -1.0, 1.0
             self.s.actions.append(ActionVar(a.name, len(self.s.actions), lo, hi, a.span))
@@ -125,7 +126,7 @@ class SystemChecks:
             self.s.const_failed.add("dt")
             return
         if not dt > 0 or not math.isfinite(dt):
-            self.d.add("E117", f"dt must be a positive number of seconds, not {_fmt(dt)}", e.span)
+            self.d.add("E117", f"dt must be a positive number of seconds, not {number(dt)}", e.span)
             self.s.const_failed.add("dt")
             return
         self.s.dt = dt
@@ -205,7 +206,7 @@ class SystemChecks:
                 self.d.add("E117", "substeps must be a whole number of at least 1", s.span)
                 continue
             if v > LIMITS.substeps:  # every step of every environment would take that many evaluations
-                self.d.add("E117", f"substeps = {_fmt(v)} is more than {LIMITS.substeps:,}", s.span,
+                self.d.add("E117", f"substeps = {number(v)} is more than {LIMITS.substeps:,}", s.span,
                            hint="a few substeps integrate as accurately at a fraction of the cost; "
                            "`asapc --max-substeps N` raises the limit")
                 continue
@@ -282,7 +283,7 @@ class SystemChecks:
             try:
                 radius = self.n.constant(shape.radius, "a ball radius")
                 if not radius > 0:
-                    self.d.add("E117", f"the radius of region '{r.name}' must be positive, not {_fmt(radius)}", shape.radius.span)
+                    self.d.add("E117", f"the radius of region '{r.name}' must be positive, not {number(radius)}", shape.radius.span)
                     errors += 1
             except _Unresolved:
                 errors += 1

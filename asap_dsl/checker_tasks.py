@@ -8,10 +8,11 @@ import math
 from typing import Callable, Optional
 
 from . import ast
-from .checker_common import (ALGORITHMS, OBSERVE_ITEMS, REWARDS, TRAIN_SETTINGS, CheckState, _fmt, _Unresolved)
+from .checker_common import (ALGORITHMS, OBSERVE_ITEMS, REWARDS, TRAIN_SETTINGS, CheckState, _Unresolved)
 from .checker_exprs import Conditions, Numbers
 from .diagnostics import Span
 from .diagnostics import closest as _closest
+from .formatting import number
 from .limits import LIMITS
 from .model import RewardModel, TaskModel
 from .stl import ir
@@ -118,12 +119,12 @@ class TaskChecks:
                 errors += 1
                 continue
             if lo < state.low or hi > state.high:
-                self.d.add("E108", f"the init range [{_fmt(lo)}, {_fmt(hi)}] of '{side.var}' is not inside its state space "
-                           f"[{_fmt(state.low)}, {_fmt(state.high)}]", side.bounds.span)
+                self.d.add("E108", f"the init range [{number(lo)}, {number(hi)}] of '{side.var}' is not inside its state space "
+                           f"[{number(state.low)}, {number(state.high)}]", side.bounds.span)
                 errors += 1
                 continue
             if not (math.isfinite(lo) and math.isfinite(hi) and math.isfinite(hi - lo)):
-                self.d.add("E122", f"the init range [{_fmt(lo)}, {_fmt(hi)}] of '{side.var}' cannot be sampled uniformly: "
+                self.d.add("E122", f"the init range [{number(lo)}, {number(hi)}] of '{side.var}' cannot be sampled uniformly: "
                            "it must be finite", side.bounds.span)
                 errors += 1
                 continue
@@ -185,7 +186,7 @@ class TaskChecks:
                 continue
             if kind == "int":
                 if not float(number).is_integer() or number < 0:
-                    self.d.add("E117", f"'{s.name}' must be a whole number, not {_fmt(number)}", s.span)
+                    self.d.add("E117", f"'{s.name}' must be a whole number, not {number(number)}", s.span)
                     errors += 1
                     continue
                 number = int(number)

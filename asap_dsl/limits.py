@@ -5,11 +5,13 @@ machine. ``asapc``'s global flags raise the ones that are a matter of resources
 (``--max-spec-size MB``, ``--max-deadline STEPS``, ``--max-substeps N``); from Python, set the
 fields of :data:`LIMITS` (or use :func:`raised`). The nesting limits are not flags: they keep
 the tree walks within Python's stack, and a chain (a + b + ..., a and b and ...) never counts.
+The processes a run may start are bounded by the cores (:func:`available_cores`).
 """
 
 from __future__ import annotations
 
 import contextlib
+import os
 from dataclasses import dataclass, fields, replace
 from typing import Iterator
 
@@ -54,4 +56,10 @@ def raised(**changes: int) -> Iterator[Limits]:
             setattr(LIMITS, f.name, getattr(old, f.name))
 
 
-__all__ = ["LIMITS", "Limits", "raised"]
+def available_cores() -> int:
+    """The cores this process may run on: the default number of worker processes everywhere, and
+    their cap unless forced (more processes than cores only slow every one of them down)."""
+    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+
+
+__all__ = ["LIMITS", "Limits", "available_cores", "raised"]

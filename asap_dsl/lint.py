@@ -3,20 +3,26 @@
 The checker reports what prevents compiling (names, types, units, causality). These rules look
 at a program that compiled and judge whether it means what its author likely wants. Each rule is
 a subclass of :class:`LintRule` registered in :data:`LINT_RULES`; its ``code`` is listed in
-:data:`asap_dsl.diagnostics.RULES` and documented in ``docs/language.md``.
+:data:`asap_dsl.diagnostics.RULES` and documented in ``docs/language.md``. One check is not a
+rule: :func:`deadline_checks` (W208, ``asapc lint --deep``) samples states and runs the oracle,
+so it is asked for, not run with every compile.
 """
 
 from __future__ import annotations
 
 import math
-from typing import ClassVar, Optional
+from typing import TYPE_CHECKING, ClassVar, Optional
 
 import numpy as np
 
-from .diagnostics import Collector
+from .diagnostics import Collector, Diagnostic, make
 from .expr import degree
+from .formatting import number
 from .model import ProgramModel, RegionModel, TaskModel
 from .stl import ir
+
+if TYPE_CHECKING:  # program imports this module
+    from .program import Program
 
 
 class LintRule:
@@ -297,7 +303,7 @@ class RSatBelowBound(LintRule):
             bound = t.r_sat_bound
             if math.isfinite(bound) and t.r_sat <= bound:
                 out.add(self.code, f"r_sat = {t.r_sat:g} of task '{t.name}' is not above the theorem's bound "
-                        f"rho_max + (rho_max - rho_min) * k_max = {bound:.6g}", t.clause_spans["r_sat"],
+                        f"rho_max + (rho_max - rho_min) * k_max = {number(bound)}", t.clause_spans["r_sat"],
                         hint="an optimal policy may then not be as-soon-as-possible; `r_sat auto` derives a safe value")
 
 
@@ -321,11 +327,45 @@ def lint(prog: ProgramModel, out: Collector, rules: Optional[list[type[LintRule]
 
     Geometry with extreme numbers (a centre at 1e308) overflows to inf, which the rules read as
     "far" or "unbounded"; numpy's warnings about it are not the user's business."""
-    import numpy as np
-
     with np.errstate(all="ignore"):
         for cls in rules or LINT_RULES:
             cls().check(prog, out)
 
 
-__all__ = ["LintRule", "LINT_RULES", "lint", "regions_overlap"]
+def deadline_checks(prog: Program, samples: int = 16, seconds: float = 60.0,
+                    seed: int = 0) -> tuple[list[Diagnostic], list[tuple[str, str]]]:
+    """W208 (``asapc lint --deep``): sample ``samples`` initial states of each task and ask the
+    oracle whether ``asap`` can hold within the deadline from each, in ``seconds`` of search per
+    task shared by its samples (``seed`` draws the states).
+
+    Returns the warnings (at most two per task: the states shown not to make it, and those the
+    search could not decide in time) and the tasks it could not check, each with the reason (a
+    black-box system, a goal the oracle cannot express)."""
+    if prog.system.kind == "simulator":
+        why = f"system {prog.system.name} is a black-box simulator: the oracle needs known dynamics (ode or map)"
+        return [], [(name, why) for name in prog.tasks]
+    from .backends.oracle.solver import deadline_infeasible  # CasADi: only when asked
+
+    out, skipped = [], []
+    for name in prog.tasks:
+        task = prog.model.tasks[name]
+        try:
+            bad = deadline_infeasible(prog, name, samples=samples, seed=seed, seconds=seconds)
+        except ValueError as err:  # a goal the oracle cannot express: say so
+            skipped.append((name, str(err)))
+            continue
+        decided = [b for b in bad if b[1] != "timeout"]
+        undecided = [b for b in bad if b[1] == "timeout"]
+        for group, says in ((decided, "cannot fulfil"), (undecided, "were not shown to fulfil")):
+            if not group:
+                continue
+            state, _, reason = group[0]
+            shown = ", ".join(f"{n}={v:.3g}" for n, v in zip(prog.system.state_names, state))
+            out.append(make("W208", f"{len(group)} of {samples} sampled initial states of task '{name}' {says} "
+                            f"`asap` within the deadline of {task.deadline:,} steps, e.g. from {shown} ({reason})",
+                            task.clause_spans["deadline"], prog.file,
+                            hint="enlarge the deadline or the action bounds, or shrink the init box"))
+    return out, skipped
+
+
+__all__ = ["LintRule", "LINT_RULES", "deadline_checks", "lint", "regions_overlap"]

@@ -17,6 +17,7 @@ import numpy as np
 from . import ast
 from .diagnostics import Span
 from .expr import SCALAR, ScalarForm, Symbols, compile_batched, compile_function
+from .formatting import number
 from .stl import ir
 
 
@@ -188,14 +189,10 @@ class RegionModel:
 
     def describe(self) -> str:
         if self.kind == "ball":
-            centre = ", ".join(f"{n}: {_num(c)}" for n, c in zip(self.coords, self.centre))
-            return f"ball({{{centre}}}, {_num(self.radius)})"
-        sides = ", ".join(f"{n} in [{_num(a)}, {_num(b)}]" for n, a, b in zip(self.coords, self.low, self.high))
+            centre = ", ".join(f"{n}: {number(c)}" for n, c in zip(self.coords, self.centre))
+            return f"ball({{{centre}}}, {number(self.radius)})"
+        sides = ", ".join(f"{n} in [{number(a)}, {number(b)}]" for n, a, b in zip(self.coords, self.low, self.high))
         return f"box({sides})"
-
-
-def _num(x: float) -> str:
-    return f"{x:.6g}"
 
 
 @dataclass(frozen=True)
@@ -218,7 +215,7 @@ class RewardModel:
         """As written in a spec: ``asap``, ``rho(window = 5)``, ``distance(lambda_t = 1, ...)``."""
         if not self.params:
             return self.kind
-        return self.kind + "(" + ", ".join(f"{k} = {v:.6g}" for k, v in self.params.items()) + ")"
+        return self.kind + "(" + ", ".join(f"{k} = {number(v)}" for k, v in self.params.items()) + ")"
 
 
 @dataclass(frozen=True)

@@ -1,6 +1,7 @@
 """``asapc compare FILE...``: flags, the sweep's live progress, and the summary printed at the end.
 
-Exit status: 0 the report was written, 1 a problem with a spec, 2 a bad flag, 130 interrupted (the
+The sweep, the paired evaluation and the report are :mod:`asap_dsl.backends.compare`. Exit
+status: 0 the report was written, 1 a problem with a spec, 2 a bad flag, 130 interrupted (the
 finished runs are kept and running ones checkpointed: the same command continues).
 """
 
@@ -11,35 +12,29 @@ import sys
 import time
 from typing import Optional, TextIO
 
-__all__ = ["add_compare_arguments", "compare_command"]
+from .args import InputError, UsageError, add_episodes, add_workers, names_list, positive_int, steps_int, workers
+
+__all__ = ["SweepProgress", "compare_command", "fill_compare_subparser"]
 
 
-def _names(text: str) -> list[str]:
-    items = [x.strip() for x in text.split(",") if x.strip()]
-    if not items:
-        raise argparse.ArgumentTypeError("give at least one name, comma-separated")
-    return items
-
-
-def add_compare_arguments(p: argparse.ArgumentParser) -> None:
-    from asap_dsl.cli import episodes_int
-
-    from asap_dsl.cli.train import _positive_int, _steps
-
+def fill_compare_subparser(subparsers) -> argparse.ArgumentParser:
+    p = subparsers.add_parser("compare", help="train what is missing, evaluate every run on the same states and "
+                              "write a report (Markdown and HTML) beside the oracle's ceiling")
     p.add_argument("files", nargs="+", metavar="FILE", help="the .asap specs")
-    p.add_argument("--tasks", type=_names, help="comma-separated tasks (default: every task of each file)")
-    p.add_argument("--rewards", type=_names, default=["asap", "rho", "distance"],
+    p.add_argument("--tasks", type=names_list, help="comma-separated tasks (default: every task of each file)")
+    p.add_argument("--rewards", type=names_list, default=["asap", "rho", "distance"],
                    help="comma-separated rewards, Table 1 (default asap,rho,distance)")
-    p.add_argument("--algos", type=_names, default=["sac"], help="comma-separated algorithms, Table 2 (default sac)")
-    p.add_argument("--seeds", type=_positive_int, default=3, help="seeds per configuration (default 3)")
-    p.add_argument("--steps", type=_steps, help="environment steps per run (default: the preset's)")
+    p.add_argument("--algos", type=names_list, default=["sac"], help="comma-separated algorithms, Table 2 (default sac)")
+    p.add_argument("--seeds", type=positive_int, default=3, help="seeds per configuration (default 3)")
+    p.add_argument("--steps", type=steps_int, help="environment steps per run (default: the preset's)")
     p.add_argument("--preset", default="default", help="default or paper")
-    p.add_argument("--episodes", type=episodes_int, default=1000, help="evaluation states (default 1000)")
-    p.add_argument("--workers", type=_positive_int, help="training processes (default: the cores available)")
-    p.add_argument("--force-workers", action="store_true", help="allow more workers than cores")
+    add_episodes(p, "evaluation states (default 1000)")
+    add_workers(p, "training processes")
     p.add_argument("--ray", metavar="ADDRESS", help="run the trainings on a Ray cluster (an address, or 'auto')")
     p.add_argument("--out", default="reports/compare", help="the report and its runs (default reports/compare)")
     p.add_argument("--quiet", action="store_true", help="no progress display")
+    p.set_defaults(func=compare_command)
+    return p
 
 
 class SweepProgress:
@@ -96,59 +91,47 @@ class SweepProgress:
 
 
 def compare_command(args: argparse.Namespace, out: Optional[TextIO] = None, err: Optional[TextIO] = None) -> int:
+    """Plan the sweep (every reward and setting checked first), train what is missing, evaluate,
+    write the report and print its Table 1. ``out`` and ``err`` (standard output and error by
+    default) take the summary and the progress."""
     import asap_dsl
-    from asap_dsl.cli import available_cores, check_workers
-
     from asap_dsl.backends.compare.paired import compare
-    from asap_dsl.backends.rl.presets import ALGORITHMS, PRESETS
     from asap_dsl.backends.compare.report import markdown
-    from asap_dsl.backends.compare.sweep import SweepInterrupted, plan
+    from asap_dsl.backends.compare.sweep import SweepInterrupted, job_config, plan
+    from asap_dsl.backends.rl.presets import ALGORITHMS, PRESETS
+    from asap_dsl.limits import available_cores
 
     out, err = out or sys.stdout, err or sys.stderr
-
-    def fail(msg: str, code: int) -> int:
-        err.write(f"asapc: error: {msg}\n")
-        return code
-
     bad = [a for a in args.algos if a not in ALGORITHMS]
     if bad:
-        return fail(f"unknown algorithm '{bad[0]}'; choose from {', '.join(ALGORITHMS)}", 2)
+        raise UsageError(f"unknown algorithm '{bad[0]}'; choose from {', '.join(ALGORITHMS)}")
     if args.preset not in PRESETS:
-        return fail(f"unknown preset '{args.preset}'; choose {' or '.join(PRESETS)}", 2)
-    cores = available_cores()
-    workers = args.workers or cores
-    check_workers(workers, args.force_workers)
+        raise UsageError(f"unknown preset '{args.preset}'; choose {' or '.join(PRESETS)}")
+    n_workers = workers(args)
     try:
         jobs = plan(args.files, args.tasks, args.rewards, args.algos, args.seeds, args.preset, args.steps)
-        from asap_dsl.backends.compare.sweep import job_config
-
         progs = {spec: asap_dsl.load(spec) for spec in {j.spec for j in jobs}}
         for j in jobs:  # every reward and setting checked before anything trains
             job_config(j, progs[j.spec])
-    except asap_dsl.SpecError as e:
-        err.write(f"{e.report()}\n")
-        return 1
-    except KeyError as e:
-        return fail(e.args[0], 2)
-    except ValueError as e:  # ConfigError
-        return fail(str(e), 2)
+    except KeyError as e:  # an unknown task
+        raise UsageError(e.args[0]) from None
+    except ValueError as e:  # ConfigError: a reward or setting
+        raise UsageError(str(e)) from None
     progress = None if args.quiet else SweepProgress(len(jobs), err)
     try:
-        res = compare(args.files, tasks=args.tasks, rewards=args.rewards, algos=args.algos, seeds=args.seeds,
-                      steps=args.steps, preset=args.preset, workers=workers, ray=args.ray, out=args.out,
-                      episodes=args.episodes, on_event=progress, oracle_workers=cores)
+        try:
+            res = compare(args.files, tasks=args.tasks, rewards=args.rewards, algos=args.algos, seeds=args.seeds,
+                          steps=args.steps, preset=args.preset, workers=n_workers, ray=args.ray, out=args.out,
+                          episodes=args.episodes, on_event=progress, oracle_workers=available_cores())
+        finally:  # the bar stops before anything else is printed
+            if progress:
+                progress.close()
     except SweepInterrupted as e:
-        if progress:
-            progress.close()
         err.write(f"interrupted: {sum(r['status'] == 'finished' for r in e.done)} of {len(jobs)} runs finished; "
                   "running ones were checkpointed. Run the same command again to continue.\n")
         return 130
     except RuntimeError as e:  # Ray missing or unreachable
-        if progress:
-            progress.close()
-        return fail(str(e), 1)
-    if progress:
-        progress.close()
+        raise InputError(str(e)) from None
     md = markdown(res.data)
     table1 = md.split("## Table 1 — rewards", 1)[1].split("\n## ", 1)[0].strip()
     out.write(f"report: {res.markdown} and {res.html} ({len(res.results)} runs, {res.seconds:.0f} s)\n\n")

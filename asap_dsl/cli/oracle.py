@@ -1,10 +1,9 @@
-"""``asapc oracle FILE [--task T] [--episodes N] [--workers K] [--seed S] [--format json]``.
+"""``asapc oracle FILE [--task T] [--episodes N] [--workers K] [--seed S] [--format json]``: the
+minimum steps per initial state and the best success rate any policy could reach.
 
-The lead wires these two functions into ``asapc`` (argparse)::
-
-    p = subparsers.add_parser("oracle", help="minimum steps per initial state (CasADi)")
-    add_oracle_arguments(p)
-    p.set_defaults(func=oracle_command)   # oracle_command(args) -> exit status
+The numbers come from :mod:`asap_dsl.backends.oracle`; this module reads flags, shows progress
+and prints. Exit status: 0 at least one task solved, 1 a spec error or no task solvable, 2 a
+misused flag (an unknown or empty ``--task`` included).
 """
 
 from __future__ import annotations
@@ -15,33 +14,39 @@ import sys
 import time
 from typing import Optional, TextIO
 
-from asap_dsl.backends.oracle.solver import STATE_TIME_LIMIT
-from asap_dsl.cli import episodes_int, positive_amount, positive_int, seed_int
-from asap_dsl.sampling import EVAL_SEED
+from ..formatting import percent, steps_text
+from ..sampling import EVAL_SEED
+from .args import (InputError, add_episodes, add_format, add_seed, add_task, add_workers, check_task, positive_amount,
+                   workers)
+
+__all__ = ["add_oracle_arguments", "fill_oracle_subparser", "oracle_command", "render_text"]
+
+def fill_oracle_subparser(subparsers) -> argparse.ArgumentParser:
+    p = subparsers.add_parser("oracle", help="minimum steps per initial state (CasADi) and the best success rate "
+                              "any policy could reach")
+    add_oracle_arguments(p)
+    p.set_defaults(func=oracle_command)
+    return p
 
 
-def add_oracle_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("file", metavar="FILE", help="the .asap spec (an ode or map system)")
-    parser.add_argument("--task", default=None, help="the task (default: every task of the file)")
-    parser.add_argument("--episodes", type=episodes_int, default=1000,
-                        help="initial states, the same as `asapc eval` draws (default 1000)")
-    parser.add_argument("--workers", type=positive_int, default=None,
-                        help="processes solving chunks of the states (default: one per core; at most the cores)")
-    parser.add_argument("--force-workers", action="store_true", help="allow more workers than cores")
-    parser.add_argument("--seed", type=seed_int, default=EVAL_SEED,
-                        help=f"seed of the initial states (default {EVAL_SEED}, as `asapc eval`)")
-    parser.add_argument("--state-time-limit", type=positive_amount("seconds"), default=STATE_TIME_LIMIT, metavar="SECONDS",
-                        help=f"search time per initial state before it is reported as timeout (default {STATE_TIME_LIMIT:g})")
-    parser.add_argument("--format", choices=("text", "json"), default="text", help="output format")
-    parser.add_argument("--states", action="store_true",
-                        help="with --format json: include every state's x0, steps, status and actions")
+def add_oracle_arguments(p: argparse.ArgumentParser) -> None:
+    """The flags of ``asapc oracle``, on any parser."""
+    from asap_dsl.backends.oracle import STATE_TIME_LIMIT
 
-
-def _pct(x: float) -> str:
-    return f"{100 * x:5.1f}%"
+    p.add_argument("file", metavar="FILE", help="the .asap spec (an ode or map system)")
+    add_task(p, "the task (default: every task of the file)")
+    add_episodes(p, "initial states, the same as `asapc eval` draws (default 1000)")
+    add_workers(p, "processes solving chunks of the states")
+    add_seed(p, EVAL_SEED, f"seed of the initial states (default {EVAL_SEED}, as `asapc eval`)")
+    p.add_argument("--state-time-limit", type=positive_amount("seconds"), default=STATE_TIME_LIMIT, metavar="SECONDS",
+                   help=f"search time per initial state before it is reported as timeout (default {STATE_TIME_LIMIT:g})")
+    add_format(p)
+    p.add_argument("--states", action="store_true",
+                   help="with --format json: include every state's x0, steps, status and actions")
 
 
 def render_text(report, out: TextIO) -> None:
+    """The text report of one task: the ceiling per tolerance, the minimum steps, what failed."""
     d = report.to_dict(with_states=False)
     c = d["status"]
     n = d["episodes"]
@@ -55,13 +60,12 @@ def render_text(report, out: TextIO) -> None:
     out.write("\n  tolerance  ceiling   95% CI            states\n")
     for row in d["ceiling"]:
         lo, hi = row["ci95"]
-        out.write(f"  {row['tolerance']:>9}  {_pct(row['rate'])}  [{_pct(lo)}, {_pct(hi)}]  "
+        out.write(f"  {row['tolerance']:>9}  {percent(row['rate'], 5)}  [{percent(lo, 5)}, {percent(hi, 5)}]  "
                   f"{row['count']:>5}/{row['states']}\n")
     dist = d["distribution"]
     out.write("\n  minimum steps: ")
     if dist.get("reached", 0):
-        out.write(f"min {dist['min']:.0f}, 25% {dist['p25']:.0f}, median {dist['median']:.0f}, "
-                  f"75% {dist['p75']:.0f}, max {dist['max']:.0f}, mean {dist['mean']:.2f}\n")
+        out.write(steps_text(dist) + "\n")
         hist = dist["histogram"]
         top = max(hist.values())
         out.write("  steps  states\n")
@@ -112,34 +116,27 @@ class _Progress:
 def oracle_command(args: argparse.Namespace, out: Optional[TextIO] = None, err: Optional[TextIO] = None) -> int:
     """Run the oracle on every task (or ``--task``). Exit 0 when at least one task was solved,
     1 on a spec error or when no task could be (each unsupported task is named, with the
-    operator that stops it), 2 on a misused flag (an unknown or empty ``--task`` included)."""
+    operator that stops it), 2 on a misused flag (an unknown or empty ``--task`` included).
+    ``out`` and ``err`` (standard output and error by default) take the report and the progress."""
     import asap_dsl
-    from asap_dsl.backends.oracle.solver import OracleUnsupported, run, tighten
     from asap_dsl.backends.oracle.cache import store
-    from asap_dsl.cli import EMPTY_TASK, available_cores, check_workers, usage_error
+    from asap_dsl.backends.oracle.solver import OracleUnsupported, run, tighten
 
     out = out or sys.stdout
     err = err or sys.stderr
-    workers = args.workers if args.workers is not None else available_cores()
-    check_workers(workers, getattr(args, "force_workers", False))
-    if args.task == "":
-        raise usage_error(EMPTY_TASK)
-    prog = asap_dsl.load(args.file)  # a SpecError is reported by asapc (exit 1)
-    if args.task is not None:
-        try:
-            prog.task(args.task)
-        except KeyError as e:
-            raise usage_error(str(e.args[0])) from None
+    n_workers = workers(args)
+    check_task(args.task)
+    prog = asap_dsl.load(args.file)
+    check_task(args.task, prog)
     tasks = [args.task] if args.task else list(prog.tasks)
     if not tasks:
-        err.write(f"asapc: error: {args.file} has no task\n")
-        return 1
+        raise InputError(f"{args.file} has no task")
     reports, skipped = [], []
     for t in tasks:
         progress = _Progress(err, t, args.episodes)
         try:
-            rep = run(prog, t, episodes=args.episodes, seed=args.seed, workers=workers,
-                      time_limit=getattr(args, "state_time_limit", STATE_TIME_LIMIT), progress=progress)
+            rep = run(prog, t, episodes=args.episodes, seed=args.seed, workers=n_workers,
+                      time_limit=args.state_time_limit, progress=progress)
         except OracleUnsupported as e:
             skipped.append({"task": t, "reason": str(e)})
             err.write(f"asapc: {'error' if args.task else 'note'}: {args.file}: task {t} is not solved: {e}\n")
@@ -157,18 +154,7 @@ def oracle_command(args: argparse.Namespace, out: Optional[TextIO] = None, err: 
                 out.write("\n")
             render_text(rep, out)
     if args.format == "json":  # one shape, with or without --task
-        states = getattr(args, "states", False)
-        json.dump({"file": args.file, "tasks": [r.to_dict(with_states=states, with_actions=states) for r in reports],
-                   "skipped": skipped}, out, indent=2)
+        json.dump({"file": args.file, "tasks": [r.to_dict(with_states=args.states, with_actions=args.states)
+                                                for r in reports], "skipped": skipped}, out, indent=2)
         out.write("\n")
     return 0 if reports else 1
-
-
-def main(argv: Optional[list[str]] = None) -> int:  # for `python -m asap_dsl.cli.oracle`
-    parser = argparse.ArgumentParser(prog="asapc oracle", description="minimum-time oracle (CasADi + IPOPT)")
-    add_oracle_arguments(parser)
-    return oracle_command(parser.parse_args(argv))
-
-
-if __name__ == "__main__":  # pragma: no cover
-    raise SystemExit(main())

@@ -14,11 +14,11 @@ from __future__ import annotations
 
 import base64
 import html
-import math
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Optional
 
+from asap_dsl.formatting import percent
 from asap_dsl.runs import atomic_write
 from asap_dsl.stats import mean_spread, wilson_interval
 
@@ -90,7 +90,7 @@ class ReportData:
 
 
 def _pct(x: Optional[float]) -> str:
-    return "n/a" if x is None or not math.isfinite(x) else f"{100 * x:.1f}"
+    return percent(x, sign="")  # the table's header says %
 
 
 def _cell_text(c: Optional[dict], bold: bool, md: bool) -> str:

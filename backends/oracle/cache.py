@@ -16,6 +16,7 @@ from typing import Optional
 
 import numpy as np
 
+from asap_dsl.limits import available_cores
 from asap_dsl.runs import atomic_write_json, spec_hash
 
 __all__ = ["CachedOracle", "cache_dir", "cache_path", "load", "store", "oracle_for"]
@@ -82,12 +83,8 @@ def oracle_for(prog, task: str, seed: int, episodes: int, compute: bool = True,
         return hit
     from .solver import OracleUnsupported, run
 
-    if workers is None:
-        from asap_dsl.cli import available_cores
-
-        workers = available_cores()
     try:
-        report = run(prog, task, episodes=episodes, seed=seed, workers=workers)
+        report = run(prog, task, episodes=episodes, seed=seed, workers=available_cores() if workers is None else workers)
     except OracleUnsupported:
         return None
     store(prog.source, report)

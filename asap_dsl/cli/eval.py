@@ -1,0 +1,57 @@
+"""``asapc eval RUN [--episodes N] [--tolerances 30,25] [--seed S] [--format json]``: the success
+rates of a trained run beside the oracle's ceiling.
+
+The numbers come from :func:`asap_dsl.backends.rl.evaluation.evaluate`; this module reads flags
+and prints. Exit status: 0 done, 1 a problem with the spec or the run directory, 2 a bad flag
+(a tolerance beyond the deadline included).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from typing import Optional, TextIO
+
+from ..runs import json_safe
+from ..sampling import EVAL_SEED
+from .args import InputError, UsageError, add_episodes, add_format, add_seed, add_workers, tolerances_list, workers
+
+__all__ = ["eval_command", "fill_eval_subparser"]
+
+
+def fill_eval_subparser(subparsers) -> argparse.ArgumentParser:
+    p = subparsers.add_parser("eval", help="success rates of a trained run beside the oracle's ceiling")
+    p.add_argument("run", metavar="RUN", help="a run directory written by `asapc train`")
+    add_episodes(p, "initial states (default 1000)")
+    p.add_argument("--tolerances", type=tolerances_list, help="comma-separated steps (default: the task's)")
+    add_seed(p, EVAL_SEED, f"seed of the initial states (default {EVAL_SEED})")
+    p.add_argument("--spec", help="evaluate against this spec file (it must be the one the run was trained on)")
+    p.add_argument("--no-oracle", action="store_true", help="do not compute the oracle's ceiling when it is not cached")
+    add_workers(p, "processes for the oracle")
+    add_format(p)
+    p.add_argument("--states", action="store_true", help="with --format json: every state's steps and end reason")
+    p.set_defaults(func=eval_command)
+    return p
+
+
+def eval_command(args: argparse.Namespace, out: Optional[TextIO] = None) -> int:
+    """Evaluate the run (the oracle's ceiling computed unless cached or ``--no-oracle``) and print
+    the table or the JSON on ``out`` (standard output by default)."""
+    from asap_dsl.backends.rl.evaluation import evaluate
+    from asap_dsl.runs import RunError
+
+    out = out or sys.stdout
+    n_workers = workers(args)
+    try:
+        ev = evaluate(args.run, episodes=args.episodes, tolerances=args.tolerances, seed=args.seed, spec=args.spec,
+                      oracle="cache" if args.no_oracle else "auto", workers=n_workers)
+    except RunError as e:
+        raise InputError(str(e)) from None
+    except ValueError as e:  # a tolerance beyond the deadline
+        raise UsageError(str(e)) from None
+    if args.format == "json":
+        out.write(json.dumps(json_safe(ev.to_dict(per_state=args.states)), indent=2, allow_nan=False) + "\n")
+    else:
+        out.write(ev.render() + "\n")
+    return 0
