@@ -1,34 +1,55 @@
-"""The run directory: its layout, its manifest, atomic writes and hashes.
+"""The run directory: its layout, its manifest, its lock, and how its files are written and read.
 
 A training run lives in one directory (default ``runs/<spec>-<task>-<algo>-<reward>-s<seed>/``)::
 
-    run.json          the manifest: spec path and hash, task, resolved configuration, package
-                      versions, status (running | interrupted | finished), steps and wall time
+    run.json          the manifest: spec path (absolute) and hash, task, resolved configuration,
+                      package versions, status (running | interrupted | finished | failed), steps,
+                      wall time, and the size and sha256 of the model and of every checkpoint file
     spec.asap         the spec's source as trained (its sha256 is the manifest's spec_hash)
-    model.zip         the policy that scored best on the validation states (stable-baselines3)
-    checkpoint/       model.zip, replay.pkl (off-policy), state.json: what --resume needs
+    model.zip         the policy that scored best on the validation states
+    checkpoint/       model.zip, replay.pkl (off-policy), state.pkl, state.json: what --resume needs
     curves.csv        one row per validation: steps, wall time, success rate per tolerance
     tb/               TensorBoard logs
-    eval.json         the final evaluation on the seeded evaluation states
+    eval.json         the final evaluation on the seeded evaluation states (with the model's hash)
+    .lock             the lock (``flock``): exclusive while a process trains, shared while one reads
 
-Every file is written to a temporary file in the same directory and renamed into place, so an
-interruption leaves either the old or the new version, never half of one. Models are pickles:
-they are loaded only from a run directory the user names, after its manifest and spec hash check.
+What holds, whatever happens to the process (docs/training.md, "What a run survives"):
+
+- **One owner.** Training, resuming and replacing take the exclusive lock, evaluating and reports
+  a shared one; a refusal names the process that holds it.
+- **Created whole.** A new run is built in a hidden directory beside its name (manifest, spec, a
+  checkpoint at step 0) and renamed into place: a run directory that exists can be resumed.
+  ``--force`` replaces only a directory that is a run, by exchanging it with the new one.
+- **The manifest is the commit point.** A checkpoint or a model is written in full beside its
+  name, then the manifest records its size and sha256, then it is renamed in. A kill at any
+  moment leaves the previous checkpoint valid; a file that does not match its record (damaged,
+  deleted, swapped in from another run) is refused in one sentence.
+- **Write failures are sentences.** A full disk or a read-only directory stops the run with the
+  path and the reason; the partial files are removed, the status says ``failed`` and why, and the
+  last checkpoint stays valid for ``--resume``.
 """
 
 from __future__ import annotations
 
+import errno
 import hashlib
 import json
 import math
 import os
+import re
 import tempfile
-from contextlib import contextmanager
+import time
+from contextlib import contextmanager, nullcontext
 from pathlib import Path
-from typing import Any, Iterator, Union
+from typing import Any, Callable, Iterator, Mapping, Optional, Union
 
-__all__ = ["RunError", "RunDir", "atomic_write", "atomic_write_json", "atomic_path", "default_run_name",
-           "json_safe", "package_versions", "read_json", "spec_hash"]
+from .runfiles import (_UMASK, LOCK_FILE, _reason, DirLock, RunBusy, RunError, RunWriteError, atomic_path, atomic_write, command_line,
+                       exchange, file_record, fsync_dir, is_write_error, lock_dir, record_mismatch, remove_tree, shown,
+                       writing)
+
+__all__ = ["Checkpoint", "RunBusy", "RunDir", "RunError", "RunWriteError", "atomic_path", "atomic_write",
+           "atomic_write_json", "check_target", "checkpoint_seconds", "command_line", "create_run", "default_run_name", "json_safe",
+           "package_versions", "read_json", "spec_hash"]
 
 MANIFEST = "run.json"
 SPEC_COPY = "spec.asap"
@@ -37,49 +58,29 @@ CHECKPOINT = "checkpoint"
 CURVES = "curves.csv"
 EVAL = "eval.json"
 TENSORBOARD = "tb"
-FORMAT_VERSION = 1
+FORMAT_VERSION = 2
+STATUSES = ("running", "interrupted", "finished", "failed")
 
 PathLike = Union[str, os.PathLike]
-_UMASK = os.umask(0)
-os.umask(_UMASK)
+Writer = Callable[[Path], None]
+
+_FILES = (MANIFEST, SPEC_COPY, MODEL, CURVES, EVAL)
+# The names a run directory may hold: its files, their temporaries, checkpoint stages, the lock.
+_RUN_ENTRY = re.compile(r"^(?:%s|%s|%s|\.lock|checkpoint\.(?:new|old)|\.(?:%s)\..+\.tmp(?:\.\w+)?)$" % (
+    "|".join(map(re.escape, _FILES)), CHECKPOINT, TENSORBOARD, "|".join(map(re.escape, _FILES))))
+_HEX64 = re.compile(r"^[0-9a-f]{64}$")
 
 
-class RunError(Exception):
-    """A run directory that cannot be used as asked (missing, half-written, from another spec).
-    Its message is one plain sentence for the user."""
+def checkpoint_seconds() -> float:
+    """Wall time between periodic checkpoints: 120 s, or ``ASAP_CHECKPOINT_SECONDS``."""
+    try:
+        value = float(os.environ.get("ASAP_CHECKPOINT_SECONDS", "120"))
+    except ValueError:
+        return 120.0
+    return value if value > 0 and math.isfinite(value) else 120.0
 
 
 # ---------------------------------------------------------------------------------------- files
-@contextmanager
-def atomic_path(path: PathLike) -> Iterator[Path]:
-    """Yield a temporary path beside ``path``; on success it replaces ``path`` atomically.
-
-    For writers that want a file name (``model.save``); on an exception the temporary is removed
-    and ``path`` is left as it was.
-    """
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp" + "".join(path.suffixes[-1:]), dir=path.parent)
-    os.close(fd)
-    tmp_path = Path(tmp)
-    os.chmod(tmp_path, 0o666 & ~_UMASK)  # mkstemp makes 0600; a run's files are as readable as any other
-    try:
-        yield tmp_path
-        with open(tmp_path, "rb") as f:  # the data is on disk before the name points at it
-            os.fsync(f.fileno())
-        os.replace(tmp_path, path)
-    finally:
-        if tmp_path.exists():
-            tmp_path.unlink()
-
-
-def atomic_write(path: PathLike, data: Union[str, bytes]) -> None:
-    """Write ``data`` to ``path`` atomically (text as UTF-8)."""
-    raw = data.encode("utf-8") if isinstance(data, str) else data
-    with atomic_path(path) as tmp:
-        tmp.write_bytes(raw)
-
-
 def json_safe(x: Any) -> Any:
     """Strict JSON: non-finite floats become the strings "inf", "-inf", "nan"; numpy scalars and
     arrays become Python numbers and lists."""
@@ -95,6 +96,7 @@ def json_safe(x: Any) -> Any:
 
 
 def atomic_write_json(path: PathLike, obj: Any) -> None:
+    """``obj`` as strict, indented JSON, written atomically."""
     atomic_write(path, json.dumps(json_safe(obj), indent=2, allow_nan=False) + "\n")
 
 
@@ -127,66 +129,171 @@ def default_run_name(spec_file: PathLike, task: str, algo: str, reward: str, see
     return f"{stem}-{task}-{algo}-{kind}-s{seed}"
 
 
+def read_json(path: PathLike, what: str) -> Any:
+    """A JSON file written by us, or :class:`RunError` naming it."""
+    try:
+        return json.loads(Path(path).read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise RunError(f"{shown(path)}: missing ({what})") from None
+    except (OSError, UnicodeDecodeError, ValueError) as err:
+        raise RunError(f"{shown(path)}: unreadable {what} ({_short(err)})") from None
+
+
+def _short(err: BaseException) -> str:
+    text = str(err).strip().splitlines()
+    return text[0] if text else type(err).__name__
+
+
+# ---------------------------------------------------------------------------------------- schema
+def _is_int(x: Any) -> bool:
+    return isinstance(x, int) and not isinstance(x, bool)
+
+
+def _is_record(x: Any) -> bool:
+    return (isinstance(x, dict) and _is_int(x.get("size")) and x["size"] >= 0
+            and isinstance(x.get("sha256"), str) and bool(_HEX64.match(x["sha256"])))
+
+
+_FIELDS: dict[str, tuple[Callable[[Any], bool], str]] = {
+    "spec_file": (lambda v: isinstance(v, str) and os.path.isabs(v), "an absolute path"),
+    "spec_hash": (lambda v: isinstance(v, str) and bool(_HEX64.match(v)), "a sha256"),
+    "task": (lambda v: isinstance(v, str) and v != "", "a name"),
+    "config": (lambda v: isinstance(v, dict), "an object"),
+    "versions": (lambda v: isinstance(v, dict), "an object"),
+    "status": (lambda v: v in STATUSES, " or ".join(STATUSES)),
+    "steps_done": (lambda v: _is_int(v) and v >= 0, "a whole number"),
+    "seconds": (lambda v: isinstance(v, (int, float)) and not isinstance(v, bool) and v >= 0, "a number"),
+    "created": (lambda v: isinstance(v, str), "a date"),
+}
+_OPTIONAL: dict[str, tuple[Callable[[Any], bool], str]] = {
+    "best": (lambda v: v is None or isinstance(v, dict), "an object"),
+    "model": (lambda v: v is None or _is_record(v), "a file record (size, sha256)"),
+    "checkpoint": (lambda v: v is None or (isinstance(v, dict) and _is_int(v.get("steps")) and v["steps"] >= 0
+                                           and isinstance(v.get("files"), dict) and bool(v["files"])
+                                           and all(isinstance(k, str) and re.match(r"^[\w.-]+$", k) and k not in (".", "..")
+                                                   and _is_record(r) for k, r in v["files"].items())),
+                   "a checkpoint record"),
+    "error": (lambda v: v is None or isinstance(v, str), "a sentence"),
+}
+
+
+def check_manifest(data: Any, where: PathLike) -> dict:
+    """``data`` if it is a manifest of this version, else :class:`RunError` naming what is wrong."""
+    def damaged(what: str) -> RunError:
+        return RunError(f"{shown(where)}: damaged manifest ({what}); replace the run with `asapc train ... --force`")
+
+    if not isinstance(data, dict):
+        raise damaged("not a JSON object")
+    fmt = data.get("format")
+    if fmt != FORMAT_VERSION:
+        if _is_int(fmt) and 0 < fmt < FORMAT_VERSION:
+            raise RunError(f"{shown(where)}: written by an older asap-dsl (run format {fmt}); "
+                           "train it again with `asapc train ... --force`")
+        raise damaged(f"format {fmt!r}, expected {FORMAT_VERSION}")
+    for table, required in ((_FIELDS, True), (_OPTIONAL, False)):
+        for key, (ok, kind) in table.items():
+            if key not in data:
+                if required:
+                    raise damaged(f"no '{key}'")
+                continue
+            if not ok(data[key]):
+                raise damaged(f"'{key}' is {_preview(data[key])}, expected {kind}")
+    return data
+
+
+def _preview(value: Any) -> str:
+    text = json.dumps(value, default=str)
+    return shown(text if len(text) <= 40 else text[:37] + "...")
+
+
 # ---------------------------------------------------------------------------------------- runs
+class Checkpoint:
+    """A checkpoint whose files match the manifest's record: ``path(name)`` is safe to load."""
+
+    def __init__(self, directory: Path, record: dict):
+        self.directory, self.steps, self.files = directory, int(record["steps"]), dict(record["files"])
+
+    def has(self, name: str) -> bool:
+        return name in self.files
+
+    def path(self, name: str) -> Path:
+        if name not in self.files:
+            raise RunError(f"{shown(self.directory)}: the checkpoint has no {name}")
+        return self.directory / name
+
+
 class RunDir:
-    """A run directory and its manifest (``run.json``)."""
+    """A run directory (its path made absolute and resolved), its manifest and its lock."""
 
     def __init__(self, path: PathLike):
-        self.path = Path(path)
+        self.path = Path(path).expanduser().resolve()
+        self.lock: Optional[DirLock] = None
+        self.interrupts = None  # an asap_dsl.processes.Interrupts: then every commit is a critical section
 
     def __repr__(self) -> str:
         return f"RunDir({str(self.path)!r})"
 
-    # layout
-    @property
-    def manifest_path(self) -> Path:
-        return self.path / MANIFEST
-
-    @property
-    def spec_path(self) -> Path:
-        return self.path / SPEC_COPY
-
-    @property
-    def model_path(self) -> Path:
-        return self.path / MODEL
-
-    @property
-    def checkpoint_dir(self) -> Path:
-        return self.path / CHECKPOINT
-
-    @property
-    def curves_path(self) -> Path:
-        return self.path / CURVES
-
-    @property
-    def eval_path(self) -> Path:
-        return self.path / EVAL
-
-    @property
-    def tensorboard_dir(self) -> Path:
-        return self.path / TENSORBOARD
+    # -- layout
+    manifest_path = property(lambda self: self.path / MANIFEST)
+    spec_path = property(lambda self: self.path / SPEC_COPY)
+    model_path = property(lambda self: self.path / MODEL)
+    checkpoint_dir = property(lambda self: self.path / CHECKPOINT)
+    curves_path = property(lambda self: self.path / CURVES)
+    eval_path = property(lambda self: self.path / EVAL)
+    tensorboard_dir = property(lambda self: self.path / TENSORBOARD)
 
     def exists(self) -> bool:
         return self.manifest_path.is_file()
 
-    # manifest
-    def read_manifest(self) -> dict:
-        """The manifest, or :class:`RunError` in one sentence when it is missing or unreadable."""
+    # -- the lock
+    def acquire(self, exclusive: bool) -> "RunDir":
+        """Take the run's lock (exclusive to write, shared to read); :class:`RunBusy` when another
+        process holds it. An exclusive holder first finishes what a killed writer left half done."""
+        if self.lock is not None and self.lock.held and (self.lock.exclusive or not exclusive):
+            return self
+        self._require_dir()
+        hint = ("wait for it to finish, or stop it, then run this again" if exclusive else
+                "wait for it to finish, then run this again")
+        self.lock = lock_dir(self.path, exclusive, wait_hint=hint)
+        if exclusive:
+            self._recover()
+        return self
+
+    def release(self) -> None:
+        if self.lock is not None:
+            self.lock.release()
+            self.lock = None
+
+    def __enter__(self) -> "RunDir":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.release()
+
+    def _require_dir(self) -> None:
         if not self.path.exists():
-            raise RunError(f"{self.path}: no such run directory")
+            raise RunError(f"{shown(self.path)}: no such run directory")
         if not self.path.is_dir():
-            raise RunError(f"{self.path}: not a directory (a run is a directory written by `asapc train`)")
+            raise RunError(f"{shown(self.path)}: not a directory (a run is a directory written by `asapc train`)")
+
+    def _critical(self, what: str):
+        return self.interrupts.critical(what) if self.interrupts is not None else nullcontext()
+
+    # -- the manifest
+    def read_manifest(self) -> dict:
+        """The manifest, checked against its schema, or :class:`RunError` in one sentence."""
+        self._require_dir()
         if not self.manifest_path.is_file():
-            raise RunError(f"{self.path}: not a run directory (it has no {MANIFEST}; was it written by `asapc train`?)")
+            raise RunError(f"{shown(self.path)}: not a run directory (it has no {MANIFEST}; was it written by "
+                           "`asapc train`?)")
         try:
             data = json.loads(self.manifest_path.read_text(encoding="utf-8"))
-        except (OSError, UnicodeDecodeError, json.JSONDecodeError) as err:
-            raise RunError(f"{self.manifest_path}: unreadable manifest ({_short(err)})") from None
-        if not isinstance(data, dict) or data.get("format") != FORMAT_VERSION or "config" not in data:
-            raise RunError(f"{self.manifest_path}: not a manifest of this version of asap-dsl")
-        return data
+        except (OSError, UnicodeDecodeError, ValueError) as err:
+            raise RunError(f"{shown(self.manifest_path)}: unreadable manifest ({_short(err)}); replace the run "
+                           "with `asapc train ... --force`") from None
+        return check_manifest(data, self.manifest_path)
 
-    def write_manifest(self, data: dict) -> None:
+    def write_manifest(self, data: Mapping[str, Any]) -> None:
         data = dict(data)
         data["format"] = FORMAT_VERSION
         atomic_write_json(self.manifest_path, data)
@@ -203,32 +310,356 @@ class RunDir:
         try:
             source = self.spec_path.read_text(encoding="utf-8")
         except (OSError, UnicodeDecodeError):
-            raise RunError(f"{self.path}: the run's copy of its spec ({SPEC_COPY}) is missing or unreadable") from None
-        if spec_hash(source) != manifest.get("spec_hash"):
-            raise RunError(f"{self.spec_path}: the run's copy of its spec was changed after training "
+            raise RunError(f"{shown(self.path)}: the run's copy of its spec ({SPEC_COPY}) is missing or unreadable") from None
+        if spec_hash(source) != manifest["spec_hash"]:
+            raise RunError(f"{shown(self.spec_path)}: the run's copy of its spec was changed after training "
                            "(its hash no longer matches run.json)")
         return source
 
-    def require_model(self) -> Path:
-        if not self.model_path.is_file():
+    # -- what to type next
+    def command(self, manifest: Mapping[str, Any], how: str) -> str:
+        """``asapc train SPEC --task T --out RUN --resume`` (or ``--force``), ready to paste."""
+        return command_line(["asapc", "train", manifest.get("spec_file", "SPEC"), "--task", manifest.get("task", "T"),
+                             "--out", str(self.path), how])
+
+    def status_text(self, manifest: Mapping[str, Any]) -> str:
+        status = manifest["status"]
+        if status == "running" and self.lock is None:
+            from .runfiles import holder
+
+            if holder(self.path) is None:
+                return "stopped without saying why (killed?)"
+        if status == "failed" and manifest.get("error"):
+            return f"failed: {manifest['error']}"
+        return status
+
+    # -- the best model
+    def save_model(self, write: Writer, **changes: Any) -> dict:
+        """Write the best model: in full beside its name, recorded in the manifest (with
+        ``changes``), then renamed in. Returns its record."""
+        with self._critical("the best model"):
+            with atomic_path(self.model_path) as tmp:
+                with writing(tmp):
+                    write(tmp)
+                record = file_record(tmp)
+                self.update_manifest(model=record, **changes)
+        return record
+
+    def model_file(self, manifest: Optional[Mapping[str, Any]] = None) -> Path:
+        """The best model's path, once it is checked against the manifest's record; a model that
+        is missing, damaged or swapped in from another run is refused."""
+        manifest = manifest if manifest is not None else self.read_manifest()
+        record = manifest.get("model")
+        if record is None:
+            how = "--resume" if manifest.get("checkpoint") else "--force"
+            raise RunError(f"{shown(self.path)}: no trained model yet (the run is {self.status_text(manifest)}); "
+                           f"continue it with `{self.command(manifest, how)}`")
+        why = record_mismatch(self.model_path, record)
+        if why is None:
+            return self.model_path
+        for staged in self._staged(MODEL):  # renamed in after the manifest named it: a kill came between
+            if record_mismatch(staged, record) is None:
+                return staged
+        raise RunError(f"{shown(self.model_path)}: not the model this run wrote ({why}); it was damaged or "
+                       f"replaced, and is refused: train the run again with `{self.command(manifest, '--force')}`")
+
+    # -- checkpoints
+    def save_checkpoint(self, files: Mapping[str, Writer], steps: int, **changes: Any) -> Checkpoint:
+        """Write a checkpoint: every file into ``checkpoint.new``, their records into the manifest
+        (with ``changes``: the commit), then ``checkpoint.new`` exchanged with ``checkpoint``.
+        A failure or a kill before the commit leaves the previous checkpoint as the valid one."""
+        stage = self.path / f"{CHECKPOINT}.new"
+        with self._critical("the checkpoint"):
+            remove_tree(stage)
+            try:
+                with writing(stage):
+                    stage.mkdir()
+                records = {}
+                for name, write in files.items():
+                    target = stage / name
+                    with writing(target):
+                        write(target)
+                        with open(target, "rb+") as f:
+                            os.fsync(f.fileno())
+                    records[name] = file_record(target)
+                fsync_dir(stage)
+                record = {"steps": int(steps), "files": records}
+                self.update_manifest(checkpoint=record, **changes)
+            except BaseException:
+                remove_tree(stage)
+                raise
+            self._install(stage, self.checkpoint_dir)
+        return Checkpoint(self.checkpoint_dir, record)
+
+    def checkpoint(self, manifest: Optional[Mapping[str, Any]] = None) -> Optional[Checkpoint]:
+        """The checkpoint the manifest records, its files checked (None: the run has none)."""
+        manifest = manifest if manifest is not None else self.read_manifest()
+        record = manifest.get("checkpoint")
+        if record is None:
+            return None
+        first = None
+        for d in self._checkpoint_candidates():
+            bad = [(name, why) for name, r in record["files"].items() for why in [record_mismatch(d / name, r)] if why]
+            if not bad:
+                return Checkpoint(d, record)
+            first = first or (d / bad[0][0], bad[0][1])
+        where, why = first
+        raise RunError(f"{shown(where)}: damaged checkpoint ({why}); the run cannot resume from it: train it again "
+                       f"with `{self.command(manifest, '--force')}`")
+
+    def _checkpoint_candidates(self) -> list[Path]:
+        return [self.checkpoint_dir, self.path / f"{CHECKPOINT}.new", self.path / f"{CHECKPOINT}.old"]
+
+    def _install(self, stage: Path, final: Path) -> None:
+        if final.exists():
+            exchange(stage, final)
+            remove_tree(stage)  # the previous one, now under the stage's name
+        else:
+            with writing(final):
+                os.rename(stage, final)
+            fsync_dir(final.parent)
+
+    def _staged(self, name: str) -> list[Path]:
+        return sorted(self.path.glob(f".{name}.*.tmp*"))
+
+    def _recover(self) -> None:
+        """Under the exclusive lock: finish a commit that a kill cut between the manifest and the
+        rename, and remove what a killed writer left half written."""
+        try:
             manifest = self.read_manifest()
-            status = manifest.get("status", "unknown")
-            raise RunError(f"{self.path}: no trained model yet (run status: {status}; "
-                           + ("resume it with `asapc train ... --resume`)" if status != "finished" else "the run is damaged)"))
-        return self.model_path
+        except RunError:
+            return
+        try:
+            record = manifest.get("model")
+            if record is not None and record_mismatch(self.model_path, record) is not None:
+                for staged in self._staged(MODEL):
+                    if record_mismatch(staged, record) is None:
+                        os.replace(staged, self.model_path)
+                        break
+            for name in _FILES:
+                for staged in self._staged(name):
+                    remove_tree(staged)
+            try:
+                ckpt = self.checkpoint(manifest)
+            except RunError:
+                ckpt = None  # reported when it is read
+            if ckpt is not None and ckpt.directory != self.checkpoint_dir:
+                self._install(ckpt.directory, self.checkpoint_dir)
+            if ckpt is not None:
+                for d in self._checkpoint_candidates()[1:]:
+                    remove_tree(d)
+        except (OSError, RunWriteError):
+            pass  # a read-only run: nothing to finish, and the next write says why
+
+    # -- evaluation and curves
+    def write_eval(self, evaluation: Mapping[str, Any], model: Path) -> None:
+        """``eval.json``, tied to the model it evaluated by that model's sha256."""
+        data = dict(evaluation)
+        data["model_sha256"] = file_record(model)["sha256"]
+        atomic_write_json(self.eval_path, data)
+
+    def read_eval(self, manifest: Optional[Mapping[str, Any]] = None) -> dict:
+        """``eval.json``, checked: its shape, and that it evaluated this run's spec and model."""
+        manifest = manifest if manifest is not None else self.read_manifest()
+        data = read_json(self.eval_path, "evaluation")
+
+        def bad(what: str) -> RunError:
+            return RunError(f"{shown(self.eval_path)}: {what}; evaluate the run again with "
+                            f"`{command_line(['asapc', 'eval', str(self.path)])}`")
+
+        if not isinstance(data, dict):
+            raise bad("not an evaluation")
+        rows, per_state, episodes = data.get("rows"), data.get("per_state"), data.get("episodes")
+        if not (_is_int(episodes) and episodes > 0 and isinstance(rows, list) and rows and all(
+                isinstance(r, dict) and _is_int(r.get("tolerance")) and _is_int(r.get("count"))
+                and isinstance(r.get("rate"), (int, float)) and isinstance(r.get("ci95"), list) for r in rows)):
+            raise bad("damaged (its rows or episode count are not an evaluation's)")
+        if not (isinstance(per_state, dict) and isinstance(per_state.get("t_reach"), list)
+                and len(per_state["t_reach"]) == episodes):
+            raise bad("damaged (its per-state results are missing or cut)")
+        if data.get("spec_hash") != manifest["spec_hash"]:
+            raise bad("it evaluated another spec than the run's")
+        model = manifest.get("model")
+        if model is None or data.get("model_sha256") != model["sha256"]:
+            raise bad("it evaluated another model than the run's best")
+        return data
+
+    def write_curves(self, text: str) -> None:
+        atomic_write(self.curves_path, text)
+
+    def read_curves(self) -> list[dict]:
+        """``curves.csv`` as rows of numbers by column ([] when the run has none yet)."""
+        import csv
+
+        if not self.curves_path.exists():
+            return []
+        try:
+            with open(self.curves_path, newline="", encoding="utf-8") as f:
+                rows = list(csv.DictReader(f))
+        except (OSError, UnicodeDecodeError, csv.Error) as err:
+            raise RunError(f"{shown(self.curves_path)}: unreadable training curves ({_short(err)})") from None
+        out = []
+        for i, row in enumerate(rows, 2):
+            try:
+                values = {k: float(v) for k, v in row.items()}
+            except (TypeError, ValueError):
+                raise RunError(f"{shown(self.curves_path)}: line {i} is not a row of numbers (damaged)") from None
+            if "steps" not in values or not all(math.isfinite(v) for v in values.values()):
+                raise RunError(f"{shown(self.curves_path)}: line {i} is not a row of curves (damaged)")
+            out.append(values)
+        return out
+
+    # -- failures
+    @contextmanager
+    def guard(self, status: str = "failed") -> Iterator[None]:
+        """A failed write inside becomes one :class:`RunError` (:meth:`failed`): the status
+        records it, the partial files go, the sentence says what is kept and what to run next."""
+        try:
+            yield
+        except RunWriteError as err:
+            raise self.failed(err, status) from None
+        except OSError as err:
+            if not is_write_error(err):
+                raise
+            raise self.failed(RunWriteError(err.filename or self.path, _reason(err), code=err.errno), status) from None
+
+    def failed(self, err: RunWriteError, status: str = "failed") -> RunError:
+        """Record a write failure in the manifest (best effort: the disk may be full) and return
+        the sentence the user reads: the path, the reason, what is kept, and what to run next."""
+        self._recover()  # a commit cut short is finished, the partial files removed
+        remove_tree(self.path / f"{CHECKPOINT}.new")
+        manifest: dict = {}
+        try:
+            manifest = self.update_manifest(status=status, error=str(err))
+        except RunError:
+            try:
+                manifest = self.read_manifest()
+            except RunError:
+                pass
+        ckpt = manifest.get("checkpoint")
+        kept = (f"the checkpoint at step {ckpt['steps']:,} is intact" if ckpt else "nothing was saved")
+        fix = err.remedy
+        nxt = (f"continue with `{self.command(manifest, '--resume')}`" if ckpt and status != "finished" else
+               f"evaluate it with `{command_line(['asapc', 'eval', str(self.path)])}`" if status == "finished" else
+               "run it again")
+        return RunWriteError(err.path, err.reason, f"{kept}; {fix}, then {nxt}", err.code)
 
 
-def _short(err: BaseException) -> str:
-    text = str(err).strip().splitlines()
-    return text[0] if text else type(err).__name__
+# ---------------------------------------------------------------------------------------- creating
+def _is_run_entry(name: str) -> bool:
+    return bool(_RUN_ENTRY.match(name))
 
 
-def read_json(path: PathLike, what: str) -> Any:
-    """A JSON file written by us, or :class:`RunError` naming it."""
+def _clean_stale(parent: Path, name: str) -> None:
+    """Remove new-run stages that a killed ``train`` left beside ``name`` (never one whose lock
+    another process holds: it is being built)."""
+    for stage in parent.glob(f".{glob_escape(name)}.new-*"):
+        try:
+            lock = lock_dir(stage, exclusive=True)
+        except RunError:
+            continue
+        try:
+            remove_tree(stage)
+        finally:
+            lock.release()
+
+
+def glob_escape(text: str) -> str:
+    return re.sub(r"([*?\[])", r"[\1]", text)
+
+
+def check_target(path: PathLike, force: bool) -> bool:
+    """Whether a new run may be created at ``path``: True when it replaces a run (``force``),
+    False when the place is free (missing, or an empty directory). Anything else is refused with
+    one sentence: a file, a directory that is not a run (whatever the flags), a run without
+    ``force``. :func:`create_run` checks again under the lock."""
+    target = Path(path).expanduser().resolve()
+    if not (target.exists() or target.is_symlink()):
+        return False
+    if not target.is_dir():
+        raise RunError(f"{shown(target)} is a file, not a run directory; choose another --out "
+                       "(--force replaces only a run)")
     try:
-        return json.loads(Path(path).read_text(encoding="utf-8"))
-    except FileNotFoundError:
-        raise RunError(f"{path}: missing ({what})") from None
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as err:
-        raise RunError(f"{path}: unreadable {what} ({_short(err)})") from None
+        entries = sorted(e for e in os.listdir(target) if e != LOCK_FILE)
+    except OSError as err:
+        raise RunError(f"{shown(target)}: cannot be read ({_short(err)})") from None
+    if not entries:
+        return False
+    if MANIFEST not in entries:
+        raise RunError(f"{shown(target)} is a directory that is not a run (it has no {MANIFEST}); asapc never "
+                       "replaces it, even with --force: choose another --out")
+    foreign = [e for e in entries if not _is_run_entry(e)]
+    if foreign:
+        raise RunError(f"{shown(target)} holds files that are not part of a run ({shown(', '.join(foreign[:3]))}"
+                       f"{', ...' if len(foreign) > 3 else ''}); asapc never replaces it, even with --force: "
+                       "choose another --out")
+    if not force:
+        run = RunDir(target)
+        try:
+            how = f"continue it with `{run.command(run.read_manifest(), '--resume')}`, or replace it with --force"
+        except RunError:
+            how = "it is damaged: replace it with --force"
+        raise RunError(f"{shown(target)} already holds a run; {how}")
+    return True
 
+
+def create_run(path: PathLike, manifest: Mapping[str, Any], source: str, *, force: bool,
+               initial: Callable[[RunDir], None], interrupts=None) -> RunDir:
+    """Create the run directory ``path`` whole, holding its exclusive lock.
+
+    It is built in a hidden directory beside ``path`` (spec copy, manifest, then ``initial(run)``,
+    which writes the step-0 checkpoint) and renamed into place. ``path`` may be missing or an
+    empty directory; a run there is replaced only with ``force`` (exchanged with the new one,
+    then removed), and anything else never (:func:`check_target`).
+    """
+    target = Path(path).expanduser().resolve()
+    replace = check_target(target, force)
+    old: Optional[DirLock] = None
+    if target.is_dir():  # nobody may use it while it is replaced
+        old = lock_dir(target, exclusive=True, wait_hint="stop it first, or choose another --out")
+    parent = target.parent
+    with writing(parent):
+        parent.mkdir(parents=True, exist_ok=True)
+    _clean_stale(parent, target.name)
+    with writing(parent):
+        stage = Path(tempfile.mkdtemp(prefix=f".{target.name}.new-", dir=parent))
+        os.chmod(stage, 0o777 & ~_UMASK)
+    lock = lock_dir(stage, exclusive=True)
+    try:
+        staged = RunDir(stage)
+        staged.lock, staged.interrupts = lock, interrupts
+        atomic_write(staged.spec_path, source)
+        staged.write_manifest(manifest)
+        initial(staged)
+        with (interrupts.critical("the new run") if interrupts is not None else nullcontext()):
+            if replace:
+                exchange(stage, target)
+                remove_tree(stage)  # the replaced run, now under the stage's name
+            else:
+                if old is not None:  # an empty directory (perhaps with a lock file): renamed over
+                    remove_tree(target / LOCK_FILE)
+                with writing(target):
+                    try:
+                        os.rename(stage, target)
+                    except OSError as err:
+                        if err.errno in (errno.ENOTEMPTY, errno.EEXIST):  # another process created it just now
+                            raise RunError(f"{shown(target)} already holds a run (created meanwhile by another "
+                                           "process)") from None
+                        raise
+            fsync_dir(parent)
+    except BaseException:
+        remove_tree(stage)
+        lock.release()
+        raise
+    finally:
+        if old is not None:
+            old.release()
+    run = RunDir(target)
+    lock.directory = target
+    run.lock, run.interrupts = lock, interrupts
+    return run
+
+
+def stamp() -> str:
+    """The time a manifest records (local, with its offset)."""
+    return time.strftime("%Y-%m-%dT%H:%M:%S%z")

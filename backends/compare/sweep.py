@@ -1,11 +1,18 @@
 """A sweep of training runs (``asapc compare``): plan them, find the ones that exist, train the
-missing ones in parallel (worker processes, or tasks on a Ray cluster), and gather their results.
+missing ones in parallel (worker processes, or tasks on a Ray cluster: :mod:`.cluster`), and
+gather their results.
 
 Idempotent and resumable: every run lives in its own directory under ``<out>/runs``, named after
 its spec, task, algorithm, reward and seed plus a short hash of its spec and configuration. A
-finished run is read back, never retrained; an interrupted one is resumed from its checkpoint; a
-missing one is trained. Ctrl-C or SIGTERM stop the sweep: running trainings checkpoint, and the
-same command continues later.
+finished run is read back, never retrained; an interrupted or killed one is resumed from its
+checkpoint; a missing one is trained; a damaged one is trained again. Each run is trained under
+its exclusive lock, so a run that another process holds is never touched (the job fails, saying
+which process holds it).
+
+Worker processes die with the sweep (``PR_SET_PDEATHSIG`` and a parent-PID watch): ``kill -9``
+of ``compare`` leaves no training behind, and loses at most each run's steps since its last
+checkpoint. Ctrl-C or SIGTERM stop the sweep: running trainings checkpoint, and the same command
+continues later.
 """
 
 from __future__ import annotations
@@ -14,19 +21,20 @@ import hashlib
 import json
 import os
 import signal
-import threading
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any, Callable, Optional, Sequence
 
-from asap_dsl.runs import RunDir, RunError, default_run_name, read_json, spec_hash
+from asap_dsl.processes import Interrupts
+from asap_dsl.runs import RunBusy, RunDir, RunError, default_run_name, spec_hash
 
-__all__ = ["Job", "JobResult", "SweepInterrupted", "execute", "job_config", "job_dir", "plan", "run_job"]
+__all__ = ["Job", "JobResult", "SweepInterrupted", "execute", "job_config", "job_dir", "load_result", "plan",
+           "run_job"]
 
 
 @dataclass(frozen=True)
 class Job:
-    """One training run of a sweep."""
+    """One training run of a sweep (``spec``: the file's absolute path)."""
 
     spec: str
     task: str
@@ -44,11 +52,12 @@ class Job:
 def plan(specs: Sequence[str], tasks: Optional[Sequence[str]], rewards: Sequence[str], algos: Sequence[str],
          seeds: int, preset: str = "default", steps: Optional[int] = None, engine: Optional[str] = None) -> list[Job]:
     """The runs the paper's tables need: every reward with the first algorithm (Table 1), and every
-    algorithm with the first reward (Table 2), for every task of every spec and every seed."""
+    algorithm with the first reward (Table 2), for every task of every spec and every seed. A spec
+    named twice (``a.asap ./a.asap``) is planned once."""
     import asap_dsl
 
     jobs: list[Job] = []
-    for spec in specs:
+    for spec in dict.fromkeys(str(Path(s).resolve()) for s in specs):
         prog = asap_dsl.load(spec)
         names = list(tasks) if tasks else list(prog.tasks)
         for t in names:
@@ -57,7 +66,7 @@ def plan(specs: Sequence[str], tasks: Optional[Sequence[str]], rewards: Sequence
             pairs = [(r, algos[0]) for r in rewards] + [(rewards[0], a) for a in algos[1:]]
             for reward, algo in pairs:
                 for seed in range(seeds):
-                    job = Job(str(spec), t, algo, reward, seed, preset, steps, engine)
+                    job = Job(spec, t, algo, reward, seed, preset, steps, engine)
                     if job not in jobs:
                         jobs.append(job)
     return jobs
@@ -73,9 +82,10 @@ def job_config(job: Job, prog):
 
 
 def job_dir(runs_dir: Path, job: Job, prog, cfg) -> Path:
+    """``<runs_dir>/<spec>-<task>-<algo>-<reward>-s<seed>-<hash of spec and configuration>``."""
     key = json.dumps({"spec": spec_hash(prog.source), "config": cfg.key}, sort_keys=True, default=str)
     short = hashlib.sha256(key.encode()).hexdigest()[:8]
-    return Path(runs_dir) / f"{default_run_name(job.spec, cfg.task, cfg.algo, cfg.reward, cfg.seed)}-{short}"
+    return Path(runs_dir).resolve() / f"{default_run_name(job.spec, cfg.task, cfg.algo, cfg.reward, cfg.seed)}-{short}"
 
 
 @dataclass
@@ -89,6 +99,7 @@ class JobResult:
     steps: int = 0
     trained_now: bool = False
     error: Optional[str] = None
+    note: Optional[str] = None  # what happened on the way (a damaged run trained again)
 
     def to_dict(self) -> dict:
         d = asdict(self)
@@ -96,175 +107,285 @@ class JobResult:
         return d
 
 
-def _state(path: Path) -> str:
-    run = RunDir(path)
-    if not run.exists():
+def _state(run: RunDir) -> str:
+    """``missing``, ``finished`` (model and evaluation check out), ``resumable`` or ``broken``
+    (a damaged manifest: trained again). Read under the run's shared lock."""
+    if not run.path.exists() or (run.path.is_dir() and not any(e != ".lock" for e in os.listdir(run.path))):
         return "missing"
-    try:
-        manifest = run.read_manifest()
-    except RunError:
-        return "broken"
-    if manifest.get("status") == "finished" and run.model_path.is_file() and run.eval_path.is_file():
-        return "finished"
+    with run.acquire(exclusive=False):
+        try:
+            manifest = run.read_manifest()
+        except RunError:
+            return "broken"
+        if manifest["status"] == "finished":
+            try:
+                run.model_file(manifest)
+                run.read_eval(manifest)
+                return "finished"
+            except RunError:
+                pass
     return "resumable"
 
 
 def run_job(job: Job, runs_dir: str, threads: int = 1) -> dict:
-    """Train (or resume, or read back) one run; returns :meth:`JobResult.to_dict`. Runs in a worker
+    """Train (or resume, or read back) one run; returns :meth:`JobResult.to_dict`, never raises for
+    a run that cannot be used (``status`` failed, ``error`` the sentence). Runs in a worker
     process or a Ray task; one torch thread by default so that workers do not contend."""
-    import torch
-
     import asap_dsl
 
-    from ..rl.training import train
+    path = ""
+    try:
+        import torch
 
-    if threads > 0:
-        torch.set_num_threads(threads)
-    prog = asap_dsl.load(job.spec)
-    cfg = job_config(job, prog)
-    path = job_dir(Path(runs_dir), job, prog, cfg)
-    state = _state(path)
-    trained = False
-    if state != "finished":
-        try:
-            res = train(prog, job.task, algo=job.algo, reward=job.reward, steps=job.steps, seed=job.seed,
-                        preset=job.preset, engine=job.engine, out=path, resume=state == "resumable",
-                        force=state == "broken")
-        except RunError:  # a checkpoint that cannot be resumed: start that run again
-            res = train(prog, job.task, algo=job.algo, reward=job.reward, steps=job.steps, seed=job.seed,
-                        preset=job.preset, engine=job.engine, out=path, force=True)
-        trained = True
-        if res.interrupted:
-            return JobResult(job, str(path), "interrupted", res.seconds, res.steps, True).to_dict()
-    manifest = RunDir(path).read_manifest()
-    return JobResult(job, str(path), "finished", float(manifest.get("seconds", 0.0)),
-                     int(manifest.get("steps_done", 0)), trained).to_dict()
+        from ..rl.training import train
+
+        if threads > 0:
+            torch.set_num_threads(threads)
+        prog = asap_dsl.load(job.spec)
+        cfg = job_config(job, prog)
+        path = str(job_dir(Path(runs_dir), job, prog, cfg))
+        run = RunDir(path)
+        state = _state(run)
+        trained, note = False, None
+        if state != "finished":
+            kw = dict(algo=job.algo, reward=job.reward, steps=job.steps, seed=job.seed, preset=job.preset,
+                      engine=job.engine, out=path)
+            try:
+                res = train(prog, job.task, resume=state == "resumable", force=state == "broken", **kw)
+            except RunBusy:
+                raise
+            except RunError as err:
+                if state != "resumable":
+                    raise
+                # A run that cannot go on (a damaged checkpoint or model): trained again, and said so.
+                note = f"trained again: {err}"
+                res = train(prog, job.task, force=True, **kw)
+            trained = True
+            if res.interrupted:
+                return JobResult(job, path, "interrupted", res.seconds, res.steps, True, note=note).to_dict()
+        with run.acquire(exclusive=False):
+            manifest = run.read_manifest()
+            run.read_eval(manifest)
+        return JobResult(job, path, "finished", float(manifest["seconds"]), int(manifest["steps_done"]), trained,
+                         note=note).to_dict()
+    except KeyboardInterrupt:  # stopped before its training began (nothing of it was created)
+        return JobResult(job, path, "interrupted").to_dict()
+    except (RunError, asap_dsl.SpecError, ValueError, KeyError) as err:
+        text = err.report() if isinstance(err, asap_dsl.SpecError) else str(err.args[0] if err.args else err)
+        return JobResult(job, path, "failed", error=text).to_dict()
+    except Exception as err:  # noqa: BLE001 — a bug of ours: this run fails, not the sweep
+        return JobResult(job, path, "failed", error=f"internal error: {type(err).__name__}: {err}").to_dict()
 
 
 class SweepInterrupted(Exception):
-    """Ctrl-C or SIGTERM stopped the sweep; finished runs are kept, running ones checkpointed."""
+    """Ctrl-C or SIGTERM stopped the sweep; finished runs are kept, running ones checkpointed.
+    ``phase``: what was under way (``training``, ``the oracle``, ``the report``, ...)."""
 
-    def __init__(self, done: list[dict]):
+    def __init__(self, done: list[dict], phase: str = "training"):
         super().__init__("interrupted")
-        self.done = done
-
-
-def _init_worker() -> None:
-    # Ctrl-C in a terminal reaches the whole process group: the parent forwards a SIGTERM instead,
-    # so a worker ignores SIGINT until its training installs its own handler.
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
+        self.done, self.phase = done, phase
 
 
 def execute(jobs: Sequence[Job], runs_dir: str, workers: int = 1, ray_address: Optional[str] = None,
-            on_event: Optional[Callable[[str, Job, Optional[dict]], None]] = None) -> list[dict]:
+            on_event: Optional[Callable[[str, Job, Optional[dict]], None]] = None,
+            ray_timeout: float = 30.0) -> list[dict]:
     """Run every job (finished ones are only read back) and return their results in job order.
 
     ``on_event(kind, job, result)`` is told ``start``, ``done``. ``workers`` processes (spawned, one
     torch thread each) run them locally; with ``ray_address`` (or ``"auto"``) they run as tasks on a
-    Ray cluster instead. Raises :class:`SweepInterrupted` after Ctrl-C or SIGTERM.
+    Ray cluster instead (:mod:`.cluster`; ``ray_timeout`` seconds to connect). Jobs that share a run
+    directory (the same spec given twice) run once. Raises :class:`SweepInterrupted` after Ctrl-C
+    or SIGTERM.
     """
     Path(runs_dir).mkdir(parents=True, exist_ok=True)
+    runs_dir = str(Path(runs_dir).resolve())
     tell = on_event or (lambda kind, job, result: None)
+    unique, index = _distinct(jobs, runs_dir)
     if ray_address is not None:
-        return _execute_ray(jobs, runs_dir, ray_address, tell)
-    return _execute_local(jobs, runs_dir, max(1, int(workers)), tell)
+        from .cluster import execute_ray
+
+        run = lambda: execute_ray(unique, runs_dir, ray_address, tell, ray_timeout)  # noqa: E731
+    else:
+        run = lambda: _execute_local(unique, runs_dir, max(1, int(workers)), tell)  # noqa: E731
+    try:
+        done = run()
+    except SweepInterrupted as err:
+        err.done = _spread(err.done, unique, jobs, index)
+        raise
+    return _spread(done, unique, jobs, index)
+
+
+def _distinct(jobs: Sequence[Job], runs_dir: str) -> tuple[list[Job], list[int]]:
+    """The jobs with distinct run directories, and for each job the one that runs for it."""
+    import asap_dsl
+
+    progs: dict[str, Any] = {}
+    seen: dict[Path, int] = {}
+    unique: list[Job] = []
+    index = []
+    for job in jobs:
+        try:
+            prog = progs.setdefault(job.spec, asap_dsl.load(job.spec))
+            key = job_dir(Path(runs_dir), job, prog, job_config(job, prog))
+        except Exception:  # noqa: BLE001 — the worker reports it, as it reports any failed run
+            key = Path(f"<{len(unique)}>")
+        if key not in seen:
+            seen[key] = len(unique)
+            unique.append(job)
+        index.append(seen[key])
+    return unique, index
+
+
+def _spread(done: list[dict], unique: list[Job], jobs: Sequence[Job], index: list[int]) -> list[dict]:
+    """The results of the distinct jobs, one per job again (in job order)."""
+    by_job = {r["job"]["spec"] + "\0" + json.dumps(r["job"], sort_keys=True): r for r in done}
+    out = []
+    for job, k in zip(jobs, index):
+        r = by_job.get(unique[k].spec + "\0" + json.dumps(asdict(unique[k]), sort_keys=True))
+        if r is not None:
+            out.append({**r, "job": asdict(job)})
+    return out
+
+
+# ------------------------------------------------------------------------------------ local workers
+def _worker_main(conn, parent: int, threads: int) -> None:
+    """A worker process: jobs in, results out, until the pipe closes. It dies with its parent;
+    Ctrl-C is the parent's to forward (as SIGTERM), and a SIGTERM before a training has begun
+    ends the job as interrupted (each training installs its own handler)."""
+    from asap_dsl.processes import die_with_parent
+
+    die_with_parent(parent)
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    with Interrupts(signals=(signal.SIGTERM,), raise_outside=True):
+        while True:
+            try:
+                msg = conn.recv()
+            except (EOFError, OSError, KeyboardInterrupt):
+                return
+            if msg is None:
+                return
+            job, runs_dir = msg
+            try:
+                res = run_job(job, runs_dir, threads)
+            except KeyboardInterrupt:
+                res = JobResult(job, "", "interrupted").to_dict()
+            try:
+                conn.send(res)
+            except (OSError, KeyboardInterrupt):
+                return
+
+
+class _Worker:
+    def __init__(self, ctx, threads: int):
+        parent_end, child_end = ctx.Pipe()
+        self.conn = parent_end
+        self.process = ctx.Process(target=_worker_main, args=(child_end, os.getpid(), threads), daemon=True)
+        self.process.start()
+        child_end.close()
+        self.job: Optional[tuple[int, Job]] = None
+
+    def signal(self, sig: int) -> None:
+        try:
+            os.kill(self.process.pid, sig)
+        except (OSError, TypeError):
+            pass
+
+    def close(self, wait: float) -> None:
+        try:
+            self.conn.send(None)
+        except OSError:
+            pass
+        self.process.join(wait)
+        if self.process.is_alive():
+            self.process.kill()
+            self.process.join(5)
+        self.conn.close()
+
+
+def _died(worker: _Worker) -> str:
+    code = worker.process.exitcode
+    if code is not None and code < 0:
+        try:
+            name = signal.Signals(-code).name
+        except ValueError:
+            name = str(-code)
+        return f"its worker process was killed ({name}); run the same command again to continue it"
+    return f"its worker process ended (exit status {code}); run the same command again to continue it"
 
 
 def _execute_local(jobs, runs_dir, workers, tell) -> list[dict]:
     import multiprocessing as mp
-    from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
+    from multiprocessing.connection import wait
 
+    ctx = mp.get_context("spawn")  # from the main thread: the parent-death signal follows this thread
+    pool: list[_Worker] = []
     results: dict[int, dict] = {}
-    stop = {"signal": None}
-    pool = ProcessPoolExecutor(max_workers=workers, mp_context=mp.get_context("spawn"), initializer=_init_worker)
+    queue = list(enumerate(jobs))
 
-    def handle(signum, frame):
-        stop["signal"] = signum
-        for p in list(getattr(pool, "_processes", {}).values()):  # each training checkpoints on SIGTERM
-            try:
-                os.kill(p.pid, signal.SIGTERM)
-            except OSError:
-                pass
+    def forward(signum: int) -> None:  # each training checkpoints on SIGTERM
+        for w in pool:
+            if w.job is not None:
+                w.signal(signal.SIGTERM)
 
-    old = {}
-    if threading.current_thread() is threading.main_thread():
-        for sig in (signal.SIGINT, signal.SIGTERM):
-            old[sig] = signal.signal(sig, handle)
-    try:
-        queue = list(enumerate(jobs))
-        running: dict[Any, tuple[int, Job]] = {}
-        while queue or running:
-            while queue and len(running) < workers and stop["signal"] is None:
-                i, job = queue.pop(0)
-                running[pool.submit(run_job, job, str(runs_dir))] = (i, job)
-                tell("start", job, None)
-            if not running:
-                break
-            finished, _ = wait(list(running), timeout=0.5, return_when=FIRST_COMPLETED)
-            for fut in finished:
-                i, job = running.pop(fut)
-                try:
-                    res = fut.result()
-                except Exception as err:  # noqa: BLE001 — one broken run does not sink the sweep
-                    res = JobResult(job, "", "failed", error=f"{type(err).__name__}: {err}").to_dict()
-                results[i] = res
-                tell("done", job, res)
-    finally:
-        pool.shutdown(wait=True, cancel_futures=True)
-        for sig, h in old.items():
-            signal.signal(sig, h)
+    stop = Interrupts(on_signal=forward)
+    aborted = False
+    with stop:
+        try:
+            while True:
+                while queue and not stop.requested:
+                    idle = [w for w in pool if w.job is None and w.process.is_alive()]
+                    if not idle and len(pool) < workers:
+                        pool.append(_Worker(ctx, 1))
+                        idle = [pool[-1]]
+                    if not idle:
+                        break
+                    i, job = queue.pop(0)
+                    idle[0].job = (i, job)
+                    idle[0].conn.send((job, runs_dir))
+                    tell("start", job, None)
+                busy = [w for w in pool if w.job is not None]
+                if not busy:
+                    break
+                ready = wait([w.conn for w in busy] + [w.process.sentinel for w in busy], timeout=0.5)
+                for w in busy:
+                    if w.conn not in ready and w.process.sentinel not in ready:
+                        continue
+                    i, job = w.job
+                    try:
+                        res = w.conn.recv() if w.conn.poll() else None
+                    except (EOFError, OSError):
+                        res = None
+                    if res is None:
+                        res = JobResult(job, "", "failed", error=_died(w)).to_dict()
+                        pool.remove(w)
+                    w.job = None
+                    results[i] = res
+                    tell("done", job, res)
+        except KeyboardInterrupt:  # a third signal: abort, losing the steps since each last checkpoint
+            aborted = True
+            raise
+        finally:
+            for w in pool:
+                if aborted:
+                    w.signal(signal.SIGKILL)
+                w.close(wait=0 if aborted else 60)
     done = [results[i] for i in sorted(results)]
-    if stop["signal"] is not None or any(r["status"] == "interrupted" for r in done):
+    if stop.requested or any(r["status"] == "interrupted" for r in done):
         raise SweepInterrupted(done)
     return done
 
 
-def _execute_ray(jobs, runs_dir, address, tell) -> list[dict]:
-    try:
-        import ray
-    except ImportError:
-        raise RuntimeError("--ray needs Ray: pip install 'asap-dsl[ray]'") from None
-    started_here = not ray.is_initialized()
-    if started_here:
-        ray.init(address=None if address == "local" else address, ignore_reinit_error=True,
-                 log_to_driver=False, include_dashboard=False)
-    remote = ray.remote(num_cpus=1, max_retries=0)(run_job)
-    futures = {}
-    for i, job in enumerate(jobs):
-        futures[remote.remote(job, str(Path(runs_dir).resolve()))] = (i, job)
-        tell("start", job, None)
-    results: dict[int, dict] = {}
-    pending = list(futures)
-    try:
-        while pending:
-            ready, pending = ray.wait(pending, num_returns=1)
-            for ref in ready:
-                i, job = futures[ref]
-                try:
-                    res = ray.get(ref)
-                except Exception as err:  # noqa: BLE001
-                    res = JobResult(job, "", "failed", error=f"{type(err).__name__}: {err}").to_dict()
-                results[i] = res
-                tell("done", job, res)
-    except KeyboardInterrupt:
-        for ref in pending:
-            ray.cancel(ref)
-        raise SweepInterrupted([results[i] for i in sorted(results)]) from None
-    return [results[i] for i in sorted(results)]
-
-
 def load_result(res: dict) -> dict:
-    """The files of a finished run that a report reads: manifest, evaluation and curves."""
+    """The files of a finished run that a report reads, each checked: the manifest, the
+    evaluation (of this run's model), and the curves (``curves_error`` says why they are missing
+    when they cannot be read). Raises :class:`RunError` when the run cannot be used."""
     run = RunDir(res["run_dir"])
     out = dict(res)
-    out["manifest"] = run.read_manifest()
-    out["evaluation"] = read_json(run.eval_path, "evaluation")
-    curves = []
-    if run.curves_path.is_file():
-        import csv
-
-        with open(run.curves_path, newline="") as f:
-            curves = list(csv.DictReader(f))
-    out["curves"] = curves
+    with run.acquire(exclusive=False):
+        out["manifest"] = run.read_manifest()
+        out["evaluation"] = run.read_eval(out["manifest"])
+        try:
+            out["curves"], out["curves_error"] = run.read_curves(), None
+        except RunError as err:
+            out["curves"], out["curves_error"] = [], str(err)
     return out
-
