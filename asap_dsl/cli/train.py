@@ -22,9 +22,10 @@ __all__ = ["ConsoleProgress", "fill_train_subparser", "train_command", "validati
 
 
 def fill_train_subparser(subparsers) -> argparse.ArgumentParser:
+    from asap_dsl.backends.rl.engines import ENGINES
     from asap_dsl.backends.rl.presets import ALGORITHMS, PRESETS
 
-    p = subparsers.add_parser("train", help="train a policy for a task (stable-baselines3) and evaluate it")
+    p = subparsers.add_parser("train", help="train a policy for a task (stable-baselines3 or sbx) and evaluate it")
     p.add_argument("file", metavar="FILE", help="the .asap spec")
     add_task(p, "the task to train (default: the only task of the file)")
     p.add_argument("--algo", choices=ALGORITHMS, help="the algorithm (default: the task's train block, else sac)")
@@ -34,9 +35,11 @@ def fill_train_subparser(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--time-limit", type=positive_amount("minutes"), metavar="MINUTES",
                    help="end the run (as finished) after this much training time, whatever the steps")
     p.add_argument("--preset", choices=tuple(PRESETS), help="default (measured fastest here) or paper (as published)")
-    # How the steps are computed: the flags of an engine (environments, later --engine) go here
+    # How the steps are computed: the flags of an engine (environments, the engine) go here
     # and reach train() through _engine_options.
     p.add_argument("--envs", type=positive_int, dest="n_envs", help="environments stepped together (default: the preset's)")
+    p.add_argument("--engine", choices=ENGINES, help="what trains: sbx (JAX) or sb3 (stable-baselines3 on torch; "
+                   "default: the preset's engine where it has the algorithm)")
     p.add_argument("--out", help="the run directory (default runs/<spec>-<task>-<algo>-<reward>-s<seed>)")
     p.add_argument("--resume", action="store_true", help="continue the run's checkpoint (same steps, buffer, random state)")
     p.add_argument("--force", action="store_true", help="replace an existing run directory")
@@ -72,7 +75,7 @@ class ConsoleProgress:
         self.total, self.ceiling, self.first = config.steps, ceiling, done
         self.t0 = time.perf_counter()
         head = (f"{self.label}: task {config.task}, {config.algo}, {config.reward} reward, {config.preset} preset, "
-                f"seed {config.seed}, {config.steps:,} steps on {config.n_envs} env(s)")
+                f"seed {config.seed}, {config.steps:,} steps on {config.n_envs} env(s), {config.engine} engine")
         if not self.live:
             print(head + (f", resuming at {done:,}" if done else ""), file=self.stream, flush=True)
             return
@@ -118,7 +121,7 @@ class ConsoleProgress:
 def _engine_options(args: argparse.Namespace) -> dict:
     """The keywords of :func:`~asap_dsl.backends.rl.training.train` that say how the steps are
     computed (not what is trained)."""
-    return {"n_envs": args.n_envs}
+    return {"n_envs": args.n_envs, "engine": args.engine}
 
 
 def train_command(args: argparse.Namespace, out: Optional[TextIO] = None, err: Optional[TextIO] = None) -> int:

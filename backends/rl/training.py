@@ -2,10 +2,11 @@
 
 A run trains one task of a spec with an engine of :mod:`.engines` (stable-baselines3, or sbx: its
 API on JAX), validates the policy periodically on initial states of its own seed
-(:data:`~asap_dsl.backends.rl.config.VALIDATION_SEED`, never the evaluation seed) and keeps the best model, writes curves (CSV and TensorBoard), checkpoints the
-model, replay buffer and random state periodically and on Ctrl-C / SIGTERM, and finally evaluates
-the best model on the seeded evaluation states. ``resume=True`` continues a checkpoint with the
-same step count, replay buffer and random state. The directory layout is :mod:`asap_dsl.runs`.
+(:data:`~asap_dsl.backends.rl.config.VALIDATION_SEED`, never the evaluation seed) and keeps the
+best model, writes curves (CSV and TensorBoard), checkpoints the model, replay buffer and random
+state periodically and on Ctrl-C / SIGTERM, and finally evaluates the best model on the seeded
+evaluation states. ``resume=True`` continues a checkpoint with the same step count, replay buffer
+and random state. The directory layout is :mod:`asap_dsl.runs`.
 """
 
 from __future__ import annotations

@@ -1,0 +1,113 @@
+"""Training engines side by side: sbx (JAX) against stable-baselines3 (torch) on one task.
+
+Each engine trains the same run (the default preset's settings for the algorithm, seed 0, no final
+evaluation) in a fresh process of its own, one after the other: the wall time of the training,
+its environment steps per second, the CPU time it used per second of wall time (above 1: more
+than one core), and then the cost of one gradient step alone (the run's checkpointed model and
+replay buffer, ``--grad-steps`` steps after a warm-up, best of three blocks). Prints the ratios.
+
+    .venv/bin/python benchmarks/engines.py [--spec specs/dc_motor.asap] [--task reach_avoid]
+        [--algo sac] [--steps 50000] [--variants sbx,sb3] [--grad-steps 1000]
+
+A variant is an engine, optionally with its threads: ``sbx`` (one XLA compute thread, what the
+engine sets), ``sbx:eigen`` (XLA's multi-threaded default), ``sb3`` (torch's default threads),
+``sb3:1`` (one torch thread, as a sweep's workers run).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _child(args) -> dict:
+    """One variant's training and gradient-step timing, in this (fresh) process."""
+    engine, _, threads = args.child.partition(":")
+    if threads == "eigen":
+        os.environ["XLA_FLAGS"] = "--xla_cpu_multi_thread_eigen=true"  # the engine leaves an explicit choice alone
+    if threads.isdigit():
+        import torch
+
+        torch.set_num_threads(int(threads))
+    import asap_dsl
+    from asap_dsl.backends.rl.engines import get_engine
+
+    with tempfile.TemporaryDirectory() as tmp:
+        out = Path(tmp) / "run"
+        cpu0, wall0 = time.process_time(), time.perf_counter()
+        res = asap_dsl.train(args.spec, args.task, algo=args.algo, engine=engine, steps=args.steps, seed=0, out=out,
+                             evaluate=False)
+        wall, cpu = time.perf_counter() - wall0, time.process_time() - cpu0
+        row = {"variant": args.child, "steps": res.steps, "wall": wall, "training": res.seconds, "cpu_per_wall": cpu / wall,
+               "validations": len(res.curves)}
+        if args.algo in ("sac", "td3", "ddpg"):
+            row["grad_ms"] = _gradient_step_ms(get_engine(engine), args.algo, out / "checkpoint", res.config.hyper,
+                                               args.grad_steps)
+    return row
+
+
+def _gradient_step_ms(engine, algo: str, ckpt: Path, hyper: dict, n: int) -> float:
+    from stable_baselines3.common.logger import configure
+
+    model = engine.load(algo, ckpt / "model.zip")
+    model.load_replay_buffer(str(ckpt / "replay.pkl"))
+    model.set_logger(configure(None, []))
+    batch = int(hyper["batch_size"])
+    model.train(gradient_steps=1, batch_size=batch)  # compiles (sbx)
+    best = float("inf")
+    for _ in range(3):
+        t = time.perf_counter()
+        for _ in range(n):
+            model.train(gradient_steps=1, batch_size=batch)  # what the loop does per vector step
+        best = min(best, (time.perf_counter() - t) / n)
+    return 1e3 * best
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--spec", default=str(ROOT / "specs" / "dc_motor.asap"))
+    ap.add_argument("--task", default="reach_avoid")
+    ap.add_argument("--algo", default="sac")
+    ap.add_argument("--steps", type=int, default=50_000)
+    ap.add_argument("--variants", default="sbx,sb3")
+    ap.add_argument("--grad-steps", type=int, default=1000, help="gradient steps per timing block")
+    ap.add_argument("--child", help=argparse.SUPPRESS)
+    args = ap.parse_args()
+    if args.child:
+        print(json.dumps(_child(args)))
+        return 0
+    print(f"engines: {Path(args.spec).name} {args.task}, {args.algo}, default preset, {args.steps:,} steps, "
+          f"{os.cpu_count()} CPUs, load average {os.getloadavg()[0]:.2f} at the start", flush=True)
+    rows = []
+    for variant in args.variants.split(","):
+        cmd = [sys.executable, __file__, "--child", variant, "--spec", args.spec, "--task", args.task, "--algo",
+               args.algo, "--steps", str(args.steps), "--grad-steps", str(args.grad_steps)]
+        r = subprocess.run(cmd, capture_output=True, text=True)
+        if r.returncode != 0:
+            print(f"{variant}: failed\n{r.stderr[-2000:]}", file=sys.stderr)
+            return 1
+        row = json.loads(r.stdout.strip().splitlines()[-1])
+        rows.append(row)
+        grad = f", {row['grad_ms']:.3f} ms per gradient step" if "grad_ms" in row else ""
+        print(f"  {variant:<10} {row['wall']:7.1f} s for {row['steps']:,} steps ({row['steps'] / row['wall']:,.0f} "
+              f"steps/s, {row['validations']} validations), {row['cpu_per_wall']:.2f} CPU s per s{grad}", flush=True)
+    base = rows[-1]
+    for row in rows[:-1]:
+        text = f"{base['variant']} / {row['variant']}: wall {base['wall'] / row['wall']:.2f}x"
+        if "grad_ms" in row:
+            text += f", gradient step {base['grad_ms'] / row['grad_ms']:.2f}x"
+        print(text)
+    print(f"load average {os.getloadavg()[0]:.2f} at the end (other work on the machine inflates every time)")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
