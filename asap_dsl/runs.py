@@ -111,7 +111,8 @@ def package_versions() -> dict[str, str]:
     import platform
 
     out = {"python": platform.python_version()}
-    for name in ("asap-dsl", "numpy", "torch", "stable-baselines3", "gymnasium", "casadi", "mujoco", "lark", "scipy"):
+    for name in ("asap-dsl", "numpy", "torch", "stable-baselines3", "sbx-rl", "jax", "gymnasium", "casadi", "mujoco",
+                 "lark", "scipy"):
         try:
             out[name] = metadata.version(name)
         except metadata.PackageNotFoundError:

@@ -356,7 +356,8 @@ def train(spec: Union[str, Path, Program], task: Optional[str] = None, *, algo: 
           settings: Optional[Mapping[str, Any]] = None, progress: Optional[TrainProgress] = None,
           evaluate: bool = True, eval_episodes: Optional[int] = None, callbacks: Sequence = (),
           time_limit: Optional[float] = None, engine: Optional[str] = None) -> TrainResult:
-    """Train ``task`` of a spec with stable-baselines3 and evaluate the best model.
+    """Train ``task`` of a spec with stable-baselines3's API (on torch or JAX) and evaluate the
+    best model.
 
     Precedence of settings: these arguments, then the task's ``train { ... }`` block, then the
     preset. Ctrl-C or SIGTERM stop the run after a checkpoint: the result's status is then
@@ -374,6 +375,8 @@ def train(spec: Union[str, Path, Program], task: Optional[str] = None, *, algo: 
     :param seed: the run's seed (default: the ``train`` block's, else 0).
     :param preset: ``default`` or ``paper`` (:mod:`asap_dsl.backends.rl.presets`).
     :param n_envs: environments stepped together (default: the ``train`` block's, else the preset's).
+    :param engine: what trains, ``sbx`` (JAX) or ``sb3`` (stable-baselines3 on torch;
+        :mod:`asap_dsl.backends.rl.engines`); default: the preset's where it has the algorithm.
     :param out: the run directory (default ``<runs_dir>/<spec>-<task>-<algo>-<reward>-s<seed>``).
     :param runs_dir: where the default run directory goes.
     :param resume: continue the run in ``out`` from its checkpoint (same step count, replay
