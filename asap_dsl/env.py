@@ -39,6 +39,7 @@ from gymnasium import spaces
 
 from .rewards import FLOAT32_MAX, FormulaTracker, make_reward
 from .sampling import initial_states
+from .native import with_engine
 from .sim import build_simulator
 
 __all__ = ["AsapEnv", "AsapVecEnv", "END_REASONS", "EnvCore", "infos", "make_env", "make_vec_env", "register_envs"]
@@ -124,6 +125,9 @@ class EnvCore:
         self.t_reach = np.full(self.B, -1, dtype=np.int64)
         self.end = np.zeros(self.B, dtype=np.int64)
         self._keep_info(np.zeros(self.B), np.zeros(self.B, dtype=bool))
+        # ``states [m, n] -> bool [m]``: where avoid holds at step 0 of fresh episodes (None: the
+        # offline evaluator; the compiled core sets its own, which gives the same values).
+        self.avoid_at_start = None
 
     # ---- helpers -----------------------------------------------------------------------------
     def _finite_rho(self, rho: np.ndarray) -> np.ndarray:
@@ -143,7 +147,7 @@ class EnvCore:
         self.info_t = self.t.copy()
 
     def _sample(self, m: int):
-        s0 = initial_states(self.system, m, self.rng, self.tm.avoid, box=self.tm.init_box)
+        s0 = initial_states(self.system, m, self.rng, self.tm.avoid, box=self.tm.init_box, holds=self.avoid_at_start)
         k = self.rng.integers(self.kmin, self.kmax + 1, size=m)
         return s0, k
 
@@ -291,9 +295,11 @@ class AsapEnv(gym.Env):
     metadata = {"render_modes": []}
 
     def __init__(self, program, task: Optional[str] = None, reward: Any = None, seed: Optional[int] = None,
-                 failure_reward: Optional[float] = None, render_mode: Optional[str] = None):
+                 failure_reward: Optional[float] = None, render_mode: Optional[str] = None,
+                 engine: Optional[str] = None):
         super().__init__()
-        self.core = EnvCore(program, task, 1, reward, autoreset=False, failure_reward=failure_reward)
+        self.core = with_engine(EnvCore(program, task, 1, reward, autoreset=False, failure_reward=failure_reward),
+                                engine)
         self.program, self.task = program, self.core.task
         self.observation_space = self.core.observation_space
         self.action_space = self.core.action_space
@@ -324,8 +330,9 @@ class AsapVecEnv(_vec_base()):
     """``num_envs`` entries stepped together in numpy; an SB3 ``VecEnv`` with autoreset."""
 
     def __init__(self, program, task: Optional[str] = None, num_envs: int = 1, seed: Optional[int] = None,
-                 reward: Any = None, failure_reward: Optional[float] = None):
-        self.core = EnvCore(program, task, num_envs, reward, autoreset=True, failure_reward=failure_reward)
+                 reward: Any = None, failure_reward: Optional[float] = None, engine: Optional[str] = None):
+        self.core = with_engine(EnvCore(program, task, num_envs, reward, autoreset=True,
+                                        failure_reward=failure_reward), engine)
         self.render_mode = None
         super().__init__(int(num_envs), self.core.observation_space, self.core.action_space)
         self.program, self.task = program, self.core.task
@@ -396,7 +403,9 @@ def make_env(prog_or_path, task: Optional[str] = None, reward: Any = None, seed:
         ``reward`` clause writes it; ValueError, one sentence, for a bad one)
     :param seed: seeds the first ``reset`` (later resets continue its random stream)
     :param kw: ``failure_reward``, a constant for the failure step instead of the reward's
-        floor; ``render_mode`` (gymnasium's; nothing is rendered)
+        floor; ``render_mode`` (gymnasium's; nothing is rendered); ``engine``, what steps the
+        episodes: ``"native"`` (compiled, :mod:`asap_dsl.native`), ``"numpy"`` or ``"auto"``
+        (compiled where that covers the task; None: ``$ASAP_ENGINE``, else auto)
     :return: the environment (observations float32, actions clipped to the action bounds)
     """
     return AsapEnv(_program(prog_or_path), task=task, reward=reward, seed=seed, **kw)
@@ -413,7 +422,8 @@ def make_vec_env(prog_or_path, task: Optional[str] = None, num_envs: int = 1, se
     :param num_envs: the number of entries, a whole number of at least 1
     :param seed: seeds the initial states and episode lengths of every entry (None: fresh entropy)
     :param reward: None for the task's own reward, or a reward as :func:`make_env` takes it
-    :param kw: ``failure_reward``, a constant for the failure step instead of the reward's floor
+    :param kw: ``failure_reward``, a constant for the failure step instead of the reward's floor;
+        ``engine``, as :func:`make_env` takes it (the compiled step is one call per vector step)
     :return: the vector environment
     """
     return AsapVecEnv(_program(prog_or_path), task=task, num_envs=num_envs, seed=seed, reward=reward, **kw)

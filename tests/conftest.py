@@ -120,5 +120,8 @@ def spec_paths() -> list[Path]:
 
 @pytest.fixture(autouse=True)
 def _private_cache(tmp_path_factory, monkeypatch):
-    """Oracle results cached by a test stay out of the user's cache (~/.cache/asap-dsl)."""
+    """Oracle results cached by a test stay out of the user's cache (~/.cache/asap-dsl). Envs
+    step in numpy unless ``ASAP_ENGINE`` says otherwise: in a private cache every session would
+    compile every task's step again (the compiled step has its own tests, test_native.py)."""
     monkeypatch.setenv("ASAP_CACHE_DIR", str(tmp_path_factory.getbasetemp() / "asap-cache"))
+    monkeypatch.setenv("ASAP_ENGINE", os.environ.get("ASAP_ENGINE") or "numpy")
