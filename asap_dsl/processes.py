@@ -58,9 +58,11 @@ class Interrupts:
         self.count = 0
         self._old: dict = {}
         self._critical: list[str] = []
+        self._pid = os.getpid()
 
     # -- installing
     def __enter__(self) -> "Interrupts":
+        self._pid = os.getpid()
         if threading.current_thread() is threading.main_thread():
             for sig in self.signals:
                 if signal.getsignal(sig) is signal.SIG_IGN:
@@ -80,6 +82,10 @@ class Interrupts:
 
     # -- the handler
     def _handle(self, signum, frame) -> None:
+        if os.getpid() != self._pid:  # a forked child (a pool's worker) inherited us: die as by default
+            signal.signal(signum, signal.SIG_DFL)
+            os.kill(os.getpid(), signum)
+            return
         self.count += 1
         if self.signal is None:
             self.signal = signum

@@ -88,11 +88,25 @@ def _exit_status(err: BaseException) -> int:
     return 70
 
 
+def _terminated(signum, frame) -> None:
+    raise KeyboardInterrupt  # SIGTERM ends a command as Ctrl-C does (exit 130), never silently (143)
+
+
 def main(argv: Optional[Sequence[str]] = None) -> int:
     """Run ``asapc ARGV`` (``sys.argv[1:]`` by default) and return its exit status."""
-    args = build_parser().parse_args(argv)
-    _apply_limits(args)
+    import signal
+    import threading
+
+    main_thread = (threading.current_thread() is threading.main_thread()
+                   and signal.getsignal(signal.SIGTERM) is signal.SIG_DFL)
+    old = signal.signal(signal.SIGTERM, _terminated) if main_thread else None
     try:
-        return int(args.func(args) or 0)
-    except (Exception, KeyboardInterrupt) as err:
-        return _exit_status(err)
+        args = build_parser().parse_args(argv)
+        _apply_limits(args)
+        try:
+            return int(args.func(args) or 0)
+        except (Exception, KeyboardInterrupt) as err:
+            return _exit_status(err)
+    finally:
+        if main_thread:
+            signal.signal(signal.SIGTERM, old)

@@ -12,9 +12,20 @@ import sys
 import time
 from typing import Optional, TextIO
 
-from .args import InputError, UsageError, add_episodes, add_workers, names_list, positive_int, steps_int, workers
+from .args import (InputError, UsageError, add_episodes, add_workers, names_list, positive_amount, positive_int,
+                   steps_int, workers)
 
-__all__ = ["SweepProgress", "compare_command", "fill_compare_subparser"]
+__all__ = ["SweepProgress", "compare_command", "fill_compare_subparser", "ray_address"]
+
+
+def ray_address(text: str) -> str:
+    """argparse type: a Ray cluster's address (checked here: a typo is a usage error, exit 2)."""
+    from asap_dsl.backends.compare.cluster import parse_address
+
+    try:
+        return parse_address(text)
+    except ValueError as e:
+        raise argparse.ArgumentTypeError(str(e)) from None
 
 
 def fill_compare_subparser(subparsers) -> argparse.ArgumentParser:
@@ -30,7 +41,10 @@ def fill_compare_subparser(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--preset", default="default", help="default or paper")
     add_episodes(p, "evaluation states (default 1000)")
     add_workers(p, "training processes")
-    p.add_argument("--ray", metavar="ADDRESS", help="run the trainings on a Ray cluster (an address, or 'auto')")
+    p.add_argument("--ray", metavar="ADDRESS", type=ray_address,
+                   help="run the trainings on a Ray cluster: the head's HOST:PORT, ray://HOST:PORT, or auto")
+    p.add_argument("--ray-timeout", type=positive_amount("seconds"), default=30.0, metavar="SECONDS",
+                   help="give up joining the Ray cluster after this long (default 30)")
     p.add_argument("--out", default="reports/compare", help="the report and its runs (default reports/compare)")
     p.add_argument("--quiet", action="store_true", help="no progress display")
     p.set_defaults(func=compare_command)
@@ -100,6 +114,7 @@ def compare_command(args: argparse.Namespace, out: Optional[TextIO] = None, err:
     from asap_dsl.backends.compare.sweep import SweepInterrupted, job_config, plan
     from asap_dsl.backends.rl.presets import ALGORITHMS, PRESETS
     from asap_dsl.limits import available_cores
+    from asap_dsl.runs import RunError
 
     out, err = out or sys.stdout, err or sys.stderr
     bad = [a for a in args.algos if a not in ALGORITHMS]
@@ -122,18 +137,25 @@ def compare_command(args: argparse.Namespace, out: Optional[TextIO] = None, err:
         try:
             res = compare(args.files, tasks=args.tasks, rewards=args.rewards, algos=args.algos, seeds=args.seeds,
                           steps=args.steps, preset=args.preset, workers=n_workers, ray=args.ray, out=args.out,
-                          episodes=args.episodes, on_event=progress, oracle_workers=available_cores())
+                          episodes=args.episodes, on_event=progress, oracle_workers=available_cores(),
+                          ray_timeout=args.ray_timeout)
         finally:  # the bar stops before anything else is printed
             if progress:
                 progress.close()
     except SweepInterrupted as e:
-        err.write(f"interrupted: {sum(r['status'] == 'finished' for r in e.done)} of {len(jobs)} runs finished; "
-                  "running ones were checkpointed. Run the same command again to continue.\n")
+        err.write(f"interrupted during {e.phase}: {sum(r['status'] == 'finished' for r in e.done)} of {len(jobs)} "
+                  "runs finished and kept; running ones were checkpointed. Run the same command again to continue.\n")
         return 130
+    except RunError as e:  # --out is a file, or another compare holds it
+        raise InputError(str(e)) from None
     except RuntimeError as e:  # Ray missing or unreachable
         raise InputError(str(e)) from None
     md = markdown(res.data)
     table1 = md.split("## Table 1 — rewards", 1)[1].split("\n## ", 1)[0].strip()
     out.write(f"report: {res.markdown} and {res.html} ({len(res.results)} runs, {res.seconds:.0f} s)\n\n")
     out.write("Table 1 — rewards\n\n" + table1 + "\n")
+    if res.failed:  # the report stands without them, and says so; the exit status too
+        first = res.failed[0]
+        raise InputError(f"{len(res.failed)} of {len(res.results)} runs could not be used and are left out of the "
+                         f"report (first: {first['run']}: {first['error']})")
     return 0

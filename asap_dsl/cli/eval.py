@@ -39,13 +39,17 @@ def eval_command(args: argparse.Namespace, out: Optional[TextIO] = None) -> int:
     """Evaluate the run (the oracle's ceiling computed unless cached or ``--no-oracle``) and print
     the table or the JSON on ``out`` (standard output by default)."""
     from asap_dsl.backends.rl.evaluation import evaluate
-    from asap_dsl.runs import RunError
+    from asap_dsl.runs import RunError, RunWriteError
 
     out = out or sys.stdout
     n_workers = workers(args)
     try:
         ev = evaluate(args.run, episodes=args.episodes, tolerances=args.tolerances, seed=args.seed, spec=args.spec,
                       oracle="cache" if args.no_oracle else "auto", workers=n_workers)
+    except RunWriteError as e:  # evaluated, but eval.json could not be stored: shown, then said
+        if getattr(e, "evaluation", None) is not None:
+            out.write(e.evaluation.render() + "\n")
+        raise InputError(f"{e} (the evaluation above was not stored)") from None
     except RunError as e:
         raise InputError(str(e)) from None
     except ValueError as e:  # a tolerance beyond the deadline

@@ -7,19 +7,21 @@ from __future__ import annotations
 
 import json
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable, Optional, Sequence
 
 import numpy as np
 
 from asap_dsl.rollout import Evaluator
-from asap_dsl.runs import atomic_write_json, json_safe, package_versions, spec_hash
+from asap_dsl.processes import Interrupts
+from asap_dsl.runfiles import lock_dir, shown, writing
+from asap_dsl.runs import RunError, atomic_write_json, json_safe, package_versions, spec_hash
 from asap_dsl.sampling import EVAL_SEED, task_states
 
 from . import plots
 from .report import REWARD_NAMES, Column, Method, ReportData, unique, write
-from .sweep import Job, execute, load_result, plan
+from .sweep import Job, SweepInterrupted, execute, load_result, plan
 
 __all__ = ["CompareResult", "compare"]
 
@@ -32,6 +34,7 @@ class CompareResult:
     data: ReportData
     results: list[dict]
     seconds: float
+    failed: list = field(default_factory=list)  # the runs that could not be used: run, run_dir, error
 
 
 def _baseline(prog, task: str, kind: str, states: np.ndarray, oracle, cache: Path) -> Optional[dict]:
@@ -112,23 +115,80 @@ def compare(specs: Sequence[str], *, tasks: Optional[Sequence[str]] = None,
             steps: Optional[int] = None, preset: str = "default", workers: int = 1, ray: Optional[str] = None,
             out: str = "reports/compare", episodes: int = 1000,
             on_event: Optional[Callable[[str, Job, Optional[dict]], None]] = None,
-            oracle_workers: Optional[int] = None) -> CompareResult:
+            oracle_workers: Optional[int] = None, ray_timeout: float = 30.0) -> CompareResult:
     """Train what is missing, evaluate everything on the same states, write the report.
 
-    Raises :class:`~asap_dsl.backends.compare.sweep.SweepInterrupted` when stopped (the finished runs stay;
-    the same call continues).
+    Holds ``out``'s exclusive lock throughout (a second compare on it is refused, naming the
+    first). Runs that cannot be used (failed, damaged) are left out of the tables, named in the
+    report's notes and in ``CompareResult.failed``. Raises
+    :class:`~asap_dsl.backends.compare.sweep.SweepInterrupted` when Ctrl-C or SIGTERM stops any
+    phase (the finished runs stay, running ones are checkpointed: the same call continues), and
+    :class:`asap_dsl.runs.RunError` for an ``out`` that cannot be used.
     """
+    start = time.perf_counter()
+    out_dir = Path(out).expanduser().resolve()
+    if out_dir.exists() and not out_dir.is_dir():
+        raise RunError(f"--out {shown(out_dir)} is a file; compare writes a directory (its report and runs)")
+    with writing(out_dir):
+        out_dir.mkdir(parents=True, exist_ok=True)
+    phase = ["planning"]
+    results: list[dict] = []
+    # One sweep per --out at a time; Ctrl-C and SIGTERM stop every phase (the sweep's trainings checkpoint).
+    with lock_dir(out_dir, exclusive=True, wait_hint="wait for that compare to finish, or give another --out"), \
+            Interrupts(raise_outside=True):
+        try:
+            return _compare(specs, tasks, rewards, algos, seeds, steps, preset, workers, ray, out_dir, episodes,
+                            on_event, oracle_workers, ray_timeout, start, phase, results)
+        except KeyboardInterrupt:
+            raise SweepInterrupted(results, phase[0]) from None
+        except SweepInterrupted as err:
+            err.phase = phase[0]
+            raise
+
+
+def column_labels(specs: Sequence[str]) -> dict[str, str]:
+    """A name per spec for the report's columns: its path's shortest suffix (without ``.asap``)
+    that no other spec of the sweep ends with (``a/di`` and ``b/di`` for two ``di.asap``)."""
+    parts = {s: Path(s).resolve().with_suffix("").parts for s in specs}
+    out = {}
+    for s, mine in parts.items():
+        k = 1
+        while k < len(mine) and any(o[-k:] == mine[-k:] for t, o in parts.items() if t != s):
+            k += 1
+        out[s] = "/".join(mine[-k:])
+    return out
+
+
+def _compare(specs, tasks, rewards, algos, seeds, steps, preset, workers, ray, out_dir: Path, episodes, on_event,
+             oracle_workers, ray_timeout, start, phase: list, results: list) -> CompareResult:
     import asap_dsl
 
     from ..oracle.cache import oracle_for
 
-    start = time.perf_counter()
-    out_dir = Path(out)
     jobs = plan(specs, tasks, list(rewards), list(algos), seeds, preset, steps)
-    results = execute(jobs, str(out_dir / "runs"), workers=workers, ray_address=ray, on_event=on_event)
-    notes = [f"{r['job']['spec']} {r['job']['task']} {r['job']['algo']} {r['job']['reward']} seed {r['job']['seed']}: "
-             f"failed ({r.get('error')})" for r in results if r["status"] == "failed"]
-    loaded = [load_result(r) for r in results if r["status"] == "finished"]
+    labels = column_labels(sorted({j.spec for j in jobs}))
+    phase[0] = "training"
+    results[:] = execute(jobs, str(out_dir / "runs"), workers=workers, ray_address=ray, on_event=on_event,
+                         ray_timeout=ray_timeout)
+    phase[0] = "the evaluations"
+
+    def what(r: dict) -> str:
+        j = r["job"]
+        return f"{labels.get(j['spec'], Path(j['spec']).stem)} {j['task']} {j['algo']} {j['reward']} seed {j['seed']}"
+
+    failed = [{"run": what(r), "run_dir": r.get("run_dir"), "error": r.get("error")}
+              for r in results if r["status"] == "failed"]
+    notes = [f"{what(r)}: trained again ({r['note']})" for r in results if r.get("note")]
+    loaded = []
+    for r in results:
+        if r["status"] != "finished":
+            continue
+        try:
+            loaded.append(load_result(r))
+        except RunError as err:
+            failed.append({"run": what(r), "run_dir": r.get("run_dir"), "error": str(err)})
+    notes += [f"{f['run']}: not used ({f['error']})" for f in failed]
+    notes += [f"{what(r)}: training curves left out ({r['curves_error']})" for r in loaded if r.get("curves_error")]
 
     columns: list[Column] = []
     table1 = {r: Method(f"{r}/{algos[0]}", f"{REWARD_NAMES.get(r, r)} ({algos[0]})", "rl") for r in rewards}
@@ -144,8 +204,10 @@ def compare(specs: Sequence[str], *, tasks: Optional[Sequence[str]] = None,
         seen.add(key)
         prog = asap_dsl.load(job.spec)
         tm = prog.task(job.task).model
+        phase[0] = "the oracle"
         oracle = oracle_for(prog, job.task, EVAL_SEED, episodes, workers=oracle_workers)
-        col = Column(job.spec, job.task, list(tm.tolerances), tm.deadline)
+        phase[0] = "the evaluations"
+        col = Column(job.spec, job.task, list(tm.tolerances), tm.deadline, label=labels.get(job.spec))
         if oracle is not None:
             col.ceiling = {T: oracle.ceiling(T) for T in tm.tolerances}
             col.bound = oracle.bound
@@ -178,11 +240,12 @@ def compare(specs: Sequence[str], *, tasks: Optional[Sequence[str]] = None,
 
     t1 = list(table1.values()) + [greedy]
     t2 = list(table2.values()) if len(algos) > 1 else []
-    runs = [{"label": f"{Path(r['job']['spec']).stem} {r['job']['task']} {r['job']['algo']} {r['job']['reward']}",
+    runs = [{"label": f"{labels[r['job']['spec']]} {r['job']['task']} {r['job']['algo']} {r['job']['reward']}",
              "spec_hash": r["manifest"]["spec_hash"], "seed": r["job"]["seed"], "preset": r["job"]["preset"],
              "steps": r["steps"], "seconds": r["seconds"], "status": "trained now" if r["trained_now"] else "reused"}
             for r in loaded]
-    data = ReportData(title="ASAP-Phi comparison: " + ", ".join(sorted({Path(s).stem for s in specs})),
+    phase[0] = "the report"
+    data = ReportData(title="ASAP-Phi comparison: " + ", ".join(sorted(set(labels.values()))),
                       columns=columns, table1=t1, table2=t2, runs=runs, notes=notes, versions=package_versions())
     figures = {
         "success_vs_tolerance": plots.success_vs_tolerance(columns, unique(t1 + t2) + [replay]),
@@ -193,5 +256,5 @@ def compare(specs: Sequence[str], *, tasks: Optional[Sequence[str]] = None,
     data.plots = {k: v for k, v in figures.items() if v is not None}
     data.seconds = time.perf_counter() - start
     paths = write(out_dir, data)
-    atomic_write_json(out_dir / "sweep.json", {"jobs": [r for r in results], "seconds": data.seconds})
-    return CompareResult(out_dir, paths["markdown"], paths["html"], data, results, data.seconds)
+    atomic_write_json(out_dir / "sweep.json", {"jobs": [r for r in results], "failed": failed, "seconds": data.seconds})
+    return CompareResult(out_dir, paths["markdown"], paths["html"], data, results, data.seconds, failed)

@@ -38,11 +38,12 @@ class Column:
     ceiling: Optional[dict] = None     # {T: {"rate", "ci95", ...}}, or None (black box / unsupported)
     bound: Optional[str] = None        # "oracle (exact)" / "oracle (local)"
     oracle_steps: Optional[list] = None
+    label: Optional[str] = None        # the spec's name in the report (default: its file name without .asap)
 
     @property
     def name(self) -> str:
         short = {"reach": "R", "reach_avoid": "R&A"}.get(self.task, self.task)
-        return f"{Path(self.spec).stem} {short}"
+        return f"{self.label or Path(self.spec).stem} {short}"
 
 
 @dataclass

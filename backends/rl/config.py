@@ -32,6 +32,13 @@ class ConfigError(ValueError):
     """A setting that cannot be used; the message is one sentence for the user."""
 
 
+# What each stored field must be (the annotations, as text), and how a message names it.
+_STORED_TYPES = {"str": (str,), "int": (int,), "bool": (bool,), "dict[str, Any]": (dict,),
+                 "Optional[float]": (int, float, type(None))}
+_TYPE_WORDS = {"str": "a text", "int": "a whole number", "bool": "true or false", "dict[str, Any]": "an object",
+               "Optional[float]": "a number or null"}
+
+
 @dataclass
 class TrainConfig:
     """Everything that decides a training run (stored in the run's manifest)."""
@@ -65,6 +72,12 @@ class TrainConfig:
         missing = names - set(data) - {"time_limit"}
         if missing:
             raise ConfigError(f"the stored configuration lacks {', '.join(sorted(missing))}")
+        for f in fields(cls):  # a manifest edited by hand: one sentence, not a crash deep in training
+            want = _STORED_TYPES.get(str(f.type))
+            value = data.get(f.name)
+            if f.name in data and want is not None and not (isinstance(value, want) and
+                                                           (bool in want or not isinstance(value, bool))):
+                raise ConfigError(f"the stored configuration has {f.name} = {value!r}, not {_TYPE_WORDS[str(f.type)]}")
         return cls(**{k: data[k] for k in names if k in data})
 
     @property

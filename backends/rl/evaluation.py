@@ -19,12 +19,12 @@ from typing import Any, Optional, Sequence, Union
 
 import numpy as np
 
-from asap_dsl.limits import LIMITS
+from asap_dsl.limits import LIMITS, check_batch
 from asap_dsl.diagnostics import SpecError
 from asap_dsl.formatting import percent, steps_text
 from asap_dsl.program import Program, loads, read_source
 from asap_dsl.rollout import Evaluator, RolloutResult
-from asap_dsl.runs import RunDir, RunError, atomic_write_json, spec_hash
+from asap_dsl.runs import RunDir, RunError, RunWriteError, command_line, spec_hash
 from asap_dsl.sampling import EVAL_SEED, task_states
 from asap_dsl.stats import asap_gap, rate, steps_summary
 
@@ -108,7 +108,7 @@ class Evaluation:
                 lines.append(f"  ASAP gap: n/a ({g.get('reason')})")
             else:
                 lines.append(f"  ASAP gap: {g['gap']:.3f} (median of steps / oracle minimum over {g['states']} states "
-                             f"both reach; 75% {g['p75']:.3f}; {100 * g['share_optimal']:.1f}% in the minimum)")
+                             f"both reach; 75% {g['p75']:.3f}; {percent(g['share_optimal'])} in the minimum)")
         for n in self.notes:
             lines.append(f"  note: {n}")
         return "\n".join(lines)
@@ -148,19 +148,33 @@ class LoadedRun:
     program: Program
     model: Any
     scaling: Scaling
+    model_file: Optional[Path] = None  # the model loaded, checked against the manifest's record
 
     def controller(self) -> PolicyController:
         return PolicyController(self.model, self.scaling)
 
 
-def load_run(path: Union[str, Path], spec: Union[str, Path, None] = None) -> LoadedRun:
-    """Open a run directory for evaluation: its manifest, its spec (checked by hash), its model.
+def load_run(path: Union[str, Path, RunDir], spec: Union[str, Path, None] = None) -> LoadedRun:
+    """Open a run directory for evaluation: its manifest, its spec (checked by hash), its model
+    (checked against the sha256 the manifest recorded when it was written).
 
     ``spec``: evaluate against this spec file, which must be the one the run was trained on. By
     default the run's own copy is used, and the original file, if it still exists at the recorded
-    path, must not have changed. Raises :class:`RunError` with one sentence.
+    path, must not have changed. The run's shared lock is held while it is read (a
+    :class:`RunDir` already locked is read under its lock). Raises :class:`RunError` with one
+    sentence (:class:`asap_dsl.runs.RunBusy` while another process trains it).
     """
-    run = RunDir(path)
+    run = path if isinstance(path, RunDir) else RunDir(path)
+    owned = run.lock is None
+    run.acquire(exclusive=False)
+    try:
+        return _load_run(run, spec)
+    finally:
+        if owned:
+            run.release()
+
+
+def _load_run(run: RunDir, spec: Union[str, Path, None]) -> LoadedRun:
     manifest = run.read_manifest()
     try:
         config = TrainConfig.from_dict(manifest["config"])
@@ -181,12 +195,13 @@ def load_run(path: Union[str, Path], spec: Union[str, Path, None] = None) -> Loa
             except SpecError:
                 current = None
             if current is not None and spec_hash(current) != trained:
-                raise RunError(f"{original} has changed since {run.path} was trained on it; retrain, or evaluate "
-                               f"the run against its own copy with --spec {run.spec_path}")
+                raise RunError(f"{original} has changed since {run.path} was trained on it; evaluate the run "
+                               f"against its own copy with `{command_line(['asapc', 'eval', str(run.path), '--spec', str(run.spec_path)])}`, "
+                               "or train a new run")
     prog = loads(source, manifest.get("spec_file") or str(run.spec_path))
     if config.task not in prog.tasks:
         raise RunError(f"{run.path}: its task '{config.task}' is not in its spec")
-    model_path = run.require_model()
+    model_path = run.model_file(manifest)
     try:
         model = get_engine(config.engine).load(config.algo, model_path)
     except Exception as err:  # noqa: BLE001 — a damaged or foreign zip: one line, not a trace
@@ -197,10 +212,10 @@ def load_run(path: Union[str, Path], spec: Union[str, Path, None] = None) -> Loa
     if tuple(model.observation_space.shape) != (expected,):
         raise RunError(f"{model_path}: the model observes {model.observation_space.shape[0]} values, "
                        f"the task {expected}: it belongs to another run")
-    return LoadedRun(run, manifest, config, prog, model, scaling)
+    return LoadedRun(run, manifest, config, prog, model, scaling, model_path)
 
 
-def evaluate(run: Union[str, Path], *, episodes: int = 1000, tolerances: Optional[Sequence[int]] = None,
+def evaluate(run: Union[str, Path, RunDir], *, episodes: int = 1000, tolerances: Optional[Sequence[int]] = None,
              seed: int = EVAL_SEED, spec: Union[str, Path, None] = None, oracle: str = "auto",
              workers: Optional[int] = None, write: Optional[bool] = None) -> Evaluation:
     """Evaluate a run's best model, acting deterministically, on ``episodes`` seeded initial states.
@@ -218,7 +233,8 @@ def evaluate(run: Union[str, Path], *, episodes: int = 1000, tolerances: Optiona
     :param write: write the result to the run's ``eval.json`` (default: when it is the run's own
         evaluation: its episode count, seed 2024 and the task's tolerances).
     :return: success rates with their intervals and ceilings, steps to reach, failures, ASAP gap.
-    :raises asap_dsl.runs.RunError: the run cannot be evaluated (one sentence).
+    :raises asap_dsl.runs.RunError: the run cannot be evaluated (one sentence); a failed write of
+        ``eval.json`` is :class:`~asap_dsl.runs.RunWriteError` with the evaluation as ``.evaluation``.
     :raises ValueError: an argument out of range (one sentence).
     """
     if oracle not in ("auto", "cache", "off"):
@@ -227,13 +243,25 @@ def evaluate(run: Union[str, Path], *, episodes: int = 1000, tolerances: Optiona
         raise ValueError(f"episodes must be between 1 and {LIMITS.episodes:,}; got {episodes}")
     if seed < 0:
         raise ValueError(f"the seed must be 0 or more; got {seed}")
-    loaded = load_run(run, spec)
+    run_dir = run if isinstance(run, RunDir) else RunDir(run)
+    owned = run_dir.lock is None
+    run_dir.acquire(exclusive=False)  # held until eval.json is written: nobody retrains it meanwhile
+    try:
+        return _evaluate(load_run(run_dir, spec), episodes, tolerances, seed, oracle, workers, write)
+    finally:
+        if owned:
+            run_dir.release()
+
+
+def _evaluate(loaded: LoadedRun, episodes: int, tolerances: Optional[Sequence[int]], seed: int, oracle: str,
+              workers: Optional[int], write: Optional[bool]) -> Evaluation:
     prog, cfg = loaded.program, loaded.config
     task = prog.task(cfg.task).model
     tols = list(tolerances) if tolerances else list(task.tolerances)
     for T in tols:
         if not 1 <= int(T) <= task.deadline:
             raise ValueError(f"tolerance {T} is outside 1..{task.deadline} (the task's deadline: episodes end there)")
+    check_batch(prog, cfg.task, int(episodes), f"--episodes {int(episodes):,}", cfg.reward)  # exit 2 beyond memory
     start = time.perf_counter()
     states = task_states(prog.system, task, int(episodes), seed=seed)
     result = Evaluator(prog, cfg.task, states, reward=cfg.reward).run(loaded.controller())
@@ -251,5 +279,9 @@ def evaluate(run: Union[str, Path], *, episodes: int = 1000, tolerances: Optiona
     if write is None:  # the run's own evaluation: its episode count, seed 2024, the task's tolerances
         write = seed == EVAL_SEED and int(episodes) == cfg.eval_episodes and not tolerances
     if write:
-        atomic_write_json(loaded.run.eval_path, ev.to_dict())
+        try:
+            loaded.run.write_eval(ev.to_dict(), loaded.model_file)
+        except RunWriteError as err:
+            err.evaluation = ev  # computed all the same: the caller may still show it
+            raise
     return ev

@@ -13,11 +13,9 @@ from __future__ import annotations
 
 import csv
 import io
+import json
 import pickle
 import random
-import shutil
-import signal
-import threading
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -27,8 +25,9 @@ import numpy as np
 
 from asap_dsl.program import Program, load
 from asap_dsl.rollout import Evaluator
-from asap_dsl.runs import (RunDir, RunError, atomic_path, atomic_write, atomic_write_json, default_run_name,
-                           package_versions, spec_hash)
+from asap_dsl.processes import Interrupts
+from asap_dsl.runs import (Checkpoint, RunDir, RunError, check_target, checkpoint_seconds, create_run, default_run_name,
+                           json_safe, package_versions, spec_hash, stamp)
 from asap_dsl.sampling import task_states
 
 from .config import ConfigError, TrainConfig, resolve_config
@@ -38,7 +37,7 @@ from .sb3 import PolicyController, Scaling, ScaledVecEnv
 
 __all__ = ["TrainProgress", "TrainResult", "train", "validation_score"]
 
-CHECKPOINT_SECONDS = 120.0  # wall time between periodic checkpoints
+CHECKPOINT_SECONDS = checkpoint_seconds()  # wall time between periodic checkpoints (ASAP_CHECKPOINT_SECONDS)
 
 
 class TrainProgress(Protocol):
@@ -70,35 +69,16 @@ class TrainResult:
     def interrupted(self) -> bool:
         return self.status == "interrupted"
 
+    @property
+    def resume_command(self) -> str:
+        """The command that continues this run, shell-quoted, ready to paste."""
+        run = RunDir(self.run_dir)
+        return run.command(run.read_manifest(), "--resume")
+
 
 def validation_score(rates: Mapping[int, float]) -> float:
     """How validations rank models: the mean success rate over the task's tolerances."""
     return float(np.mean(list(rates.values()))) if rates else 0.0
-
-
-# ------------------------------------------------------------------------------------ stopping
-class _StopFlag:
-    """Ctrl-C and SIGTERM ask the run to stop at the next step (then it checkpoints)."""
-
-    def __init__(self):
-        self.signal: Optional[int] = None
-        self._old: dict = {}
-
-    def __enter__(self):
-        if threading.current_thread() is threading.main_thread():
-            for sig in (signal.SIGINT, signal.SIGTERM):
-                self._old[sig] = signal.signal(sig, self._handle)
-        return self
-
-    def _handle(self, signum, frame):
-        if self.signal is not None and signum == signal.SIGINT:  # a second Ctrl-C: stop now
-            raise KeyboardInterrupt
-        self.signal = signum
-
-    def __exit__(self, *exc):
-        for sig, old in self._old.items():
-            signal.signal(sig, old)
-        return False
 
 
 # ------------------------------------------------------------------------------------ checkpoints
@@ -117,43 +97,32 @@ def _set_rng_state(state: dict, venv, model, engine: Engine) -> None:
     engine.set_rng_state(model, state)
 
 
-def _save_checkpoint(run: RunDir, model, venv, algo: str, extra: dict, engine: Engine) -> None:
-    """Write the checkpoint into a fresh directory, then swap it in (the old one survives until
-    the new one is complete)."""
-    final = run.checkpoint_dir
-    tmp = final.with_name(final.name + ".new")
-    old = final.with_name(final.name + ".old")
-    shutil.rmtree(tmp, ignore_errors=True)
-    tmp.mkdir(parents=True)
-    model.save(str(tmp / "model.zip"))
+def _save_checkpoint(run: RunDir, model, venv, algo: str, extra: dict, engine: Engine, **changes: Any) -> None:
+    """Write the checkpoint through the run directory: the files in full, then their records in
+    the manifest (with ``changes``), then swapped in; the previous one stays valid until then."""
+    def state_pickle(path: Path) -> None:
+        with open(path, "wb") as f:
+            pickle.dump({"rng": _rng_state(venv, model, engine), **extra}, f)
+
+    def state_json(path: Path) -> None:
+        summary = {k: v for k, v in extra.items() if k != "curves"}
+        path.write_text(json.dumps(json_safe(summary), indent=2, allow_nan=False) + "\n", encoding="utf-8")
+
+    files = {"model.zip": lambda path: model.save(str(path))}
     if algo in OFF_POLICY:
-        model.save_replay_buffer(str(tmp / "replay.pkl"))
-    with open(tmp / "state.pkl", "wb") as f:
-        pickle.dump({"rng": _rng_state(venv, model, engine), **extra}, f)
-    atomic_write_json(tmp / "state.json", {k: v for k, v in extra.items() if k != "curves"})
-    shutil.rmtree(old, ignore_errors=True)
-    if final.exists():
-        final.rename(old)
-    tmp.rename(final)
-    shutil.rmtree(old, ignore_errors=True)
+        files["replay.pkl"] = lambda path: model.save_replay_buffer(str(path))
+    files["state.pkl"], files["state.json"] = state_pickle, state_json
+    run.save_checkpoint(files, int(extra["steps"]), **changes)
 
 
-def _checkpoint_dir(run: RunDir) -> Optional[Path]:
-    """The newest complete checkpoint (an interrupted swap leaves ``checkpoint.old``)."""
-    for d in (run.checkpoint_dir, run.checkpoint_dir.with_name(run.checkpoint_dir.name + ".old")):
-        if (d / "state.pkl").is_file() and (d / "model.zip").is_file():
-            return d
-    return None
-
-
-def _write_curves(path: Path, rows: list[dict], tolerances) -> None:
+def _write_curves(run: RunDir, rows: list[dict], tolerances) -> None:
     buf = io.StringIO()
     cols = ["steps", "seconds", "score", "best"] + [f"success_{T}" for T in tolerances]
     w = csv.DictWriter(buf, fieldnames=cols, extrasaction="ignore", lineterminator="\n")
     w.writeheader()
     for r in rows:
         w.writerow({**r, **{f"success_{T}": f"{v:.6f}" for T, v in r["rates"].items()}})
-    atomic_write(path, buf.getvalue())
+    run.write_curves(buf.getvalue())
 
 
 # ------------------------------------------------------------------------------------ the run
@@ -183,7 +152,7 @@ def _callbacks():
             if s.cfg.time_limit is not None and s.seconds >= s.cfg.time_limit:
                 s.time_up = True
                 return False
-            if time.perf_counter() - s.last_checkpoint >= CHECKPOINT_SECONDS:
+            if time.perf_counter() - s.last_checkpoint >= CHECKPOINT_SECONDS:  # noqa: SIM102
                 s.checkpoint(self.model)
             return True
 
@@ -194,7 +163,7 @@ class _Session:
     """One process's share of a run: from a fresh start or a checkpoint to the end or a stop."""
 
     def __init__(self, prog: Program, cfg: TrainConfig, run: RunDir, progress: Optional[TrainProgress],
-                 callbacks: Sequence = ()):
+                 callbacks: Sequence = (), stop: Optional[Interrupts] = None):
         import torch
 
         from asap_dsl.env import make_vec_env
@@ -217,7 +186,7 @@ class _Session:
         self.validations = max(1, cfg.steps // max(1, cfg.validate_every))
         self.next_validation_time = (cfg.time_limit / self.validations) if cfg.time_limit is not None else float("inf")
         self.seconds_before = 0.0
-        self.stop = _StopFlag()
+        self.stop = stop if stop is not None else Interrupts()
         self.time_up = False
         self.last_checkpoint = time.perf_counter()
         self.started = time.perf_counter()
@@ -247,9 +216,8 @@ class _Session:
         self.curves.append(row)
         if better:
             self.best = dict(row)
-            with atomic_path(self.run.model_path) as tmp:
-                model.save(str(tmp))
-        _write_curves(self.run.curves_path, self.curves, self.tolerances)
+            self.run.save_model(lambda path: model.save(str(path)), best=self.best)
+        _write_curves(self.run, self.curves, self.tolerances)
         if logger is not None:
             for T, v in rates.items():
                 logger.record(f"validation/success_{T}", v)
@@ -263,24 +231,33 @@ class _Session:
         return {"steps": int(model.num_timesteps), "seconds": self.seconds, "best": self.best,
                 "curves": self.curves, "next_validation": self.next_validation}
 
-    def checkpoint(self, model) -> None:
-        _save_checkpoint(self.run, model, self.raw_env, self.cfg.algo, self.state(model), self.engine)
-        self.run.update_manifest(steps_done=int(model.num_timesteps), seconds=round(self.seconds, 3))
+    def checkpoint(self, model, run: Optional[RunDir] = None) -> None:
+        """A checkpoint of ``model`` into the run (or ``run``: a new run's first, before it is in place)."""
+        _save_checkpoint(run or self.run, model, self.raw_env, self.cfg.algo, self.state(model), self.engine,
+                         steps_done=int(model.num_timesteps), seconds=round(self.seconds, 3))
         self.last_checkpoint = time.perf_counter()
 
-    def restore(self, directory: Path):
-        with open(directory / "state.pkl", "rb") as f:
-            state = pickle.load(f)
-        model = self.engine.load(self.cfg.algo, directory / "model.zip", env=self.env)
-        if self.cfg.algo in OFF_POLICY and (directory / "replay.pkl").is_file():
-            model.load_replay_buffer(str(directory / "replay.pkl"))
+    def restore(self, ckpt: Checkpoint):
+        """The model and the session's state from a checkpoint whose files the manifest vouches for."""
+        try:
+            with open(ckpt.path("state.pkl"), "rb") as f:
+                state = pickle.load(f)
+            model = self.engine.load(self.cfg.algo, ckpt.path("model.zip"), env=self.env)
+            if self.cfg.algo in OFF_POLICY:
+                model.load_replay_buffer(str(ckpt.path("replay.pkl")))
+        except RunError:
+            raise
+        except Exception as err:  # noqa: BLE001 — matches its record, yet unloadable: a foreign or old file
+            raise RunError(f"{ckpt.directory}: the checkpoint cannot be loaded ({type(err).__name__}); train the run "
+                           f"again with `{self.run.command(self.run.read_manifest(), '--force')}`") from None
         _set_rng_state(state["rng"], self.raw_env, model, self.engine)
         self.best, self.curves = state["best"], list(state["curves"])
         self.next_validation = int(state["next_validation"])
         self.seconds_before = float(state["seconds"])
         if int(model.num_timesteps) != int(state["steps"]):
             raise RunError(f"{self.run.path}: the checkpoint is inconsistent (model at step {model.num_timesteps}, "
-                           f"state at step {state['steps']}); start over with --force")
+                           f"state at step {state['steps']}); train the run again with "
+                           f"`{self.run.command(self.run.read_manifest(), '--force')}`")
         return model
 
     # -- the loop
@@ -395,68 +372,115 @@ def train(spec: Union[str, Path, Program], task: Optional[str] = None, *, algo: 
     :raises asap_dsl.runs.RunError: the run directory (exists, changed spec, no checkpoint, ...).
     :raises KeyError: an unknown task.
     """
-    prog = _program(spec)
-    cfg = resolve_config(prog, task, algo=algo, reward=reward, steps=steps, seed=seed, preset=preset,
-                         n_envs=n_envs, settings=settings, eval_episodes=eval_episodes, time_limit=time_limit,
-                         engine=engine)
-    run = RunDir(out if out is not None else Path(runs_dir) / default_run_name(prog.file, cfg.task, cfg.algo,
-                                                                             cfg.reward, cfg.seed))
-    source_hash = spec_hash(prog.source)
-    if resume:
-        manifest = run.read_manifest()
-        if manifest.get("spec_hash") != source_hash:
-            raise RunError(f"{run.path}: {prog.file} has changed since this run was trained; "
-                           "train a new run (or --force to replace this one)")
-        stored = TrainConfig.from_dict(manifest["config"])
+    stop = Interrupts()
+    with stop:  # before anything is created: from here on, Ctrl-C and SIGTERM end in a checkpoint
+        prog = _program(spec)
+        cfg = resolve_config(prog, task, algo=algo, reward=reward, steps=steps, seed=seed, preset=preset,
+                             n_envs=n_envs, settings=settings, eval_episodes=eval_episodes, time_limit=time_limit,
+                             engine=engine)
+        _check_memory(prog, cfg)
+        run = RunDir(out if out is not None else Path(runs_dir) / default_run_name(prog.file, cfg.task, cfg.algo,
+                                                                                 cfg.reward, cfg.seed))
         given = {"task": task, "algo": algo, "engine": engine, "reward": reward, "seed": seed, "preset": preset,
                  "n_envs": n_envs, "settings": dict(settings or {})}
-        conflicts = _explicit_conflicts(stored, cfg, given)
-        if conflicts:
-            raise RunError(f"{run.path}: --resume continues the run as it was configured; it differs in "
-                           + "; ".join(conflicts))
-        if steps is not None:
-            stored.steps = int(steps)
-        if time_limit is not None:
-            stored.time_limit = float(time_limit)
-        cfg = stored
-    else:
-        if run.path.exists() and (not run.path.is_dir() or any(run.path.iterdir())):
-            if not force:
-                what = "a run" if run.exists() else "a non-empty path that is not a run"
-                raise RunError(f"{run.path} already holds {what}; continue it with --resume, or replace it with --force")
-            if run.path.is_dir():
-                shutil.rmtree(run.path)
-            else:
-                run.path.unlink()
-        run.path.mkdir(parents=True, exist_ok=True)
-        atomic_write(run.spec_path, prog.source)
-        run.write_manifest({"spec_file": str(prog.file), "spec_hash": source_hash, "task": cfg.task,
-                            "config": cfg.to_dict(), "versions": package_versions(), "status": "running",
-                            "steps_done": 0, "seconds": 0.0, "created": time.strftime("%Y-%m-%dT%H:%M:%S%z")})
+        try:
+            return _run(prog, cfg, run, stop, resume=resume, force=force, given=given, steps=steps,
+                        time_limit=time_limit, progress=progress, callbacks=callbacks, evaluate=evaluate)
+        finally:
+            run.release()
 
-    session = _Session(prog, cfg, run, progress, callbacks)
-    with session.stop:  # from here on, Ctrl-C and SIGTERM end in a checkpoint
-        if resume:
-            ckpt = _checkpoint_dir(run)
-            if ckpt is None:
-                raise RunError(f"{run.path}: no checkpoint to resume from (the run stopped before its first one); "
-                               "start over with --force")
+
+def _check_memory(prog: Program, cfg: TrainConfig) -> None:
+    """Refuse (exit 2) environments or validation states beyond what the machine's memory holds:
+    the batched environments, and beside each the policy's activations and its rollout (float32)."""
+    from asap_dsl.limits import ResourceLimit, check_batch
+
+    arch = cfg.hyper.get("net_arch")
+    width = sum(arch) if isinstance(arch, (list, tuple)) and all(isinstance(w, int) for w in arch) else 1024
+    obs, act = prog.system.n_state + 1, prog.system.n_action
+    rollout = int(cfg.hyper.get("n_steps", 1)) if cfg.algo not in OFF_POLICY else 1
+    per_env = 4 * (3 * width + 4 * (obs + act)) + 4 * rollout * (2 * obs + act + 4)
+    try:
+        check_batch(prog, cfg.task, cfg.n_envs, f"--envs {cfg.n_envs:,}", cfg.reward, per_env)
+        check_batch(prog, cfg.task, cfg.validation_episodes, f"{cfg.validation_episodes:,} validation states",
+                    cfg.reward, 4 * 3 * width)
+    except ResourceLimit as err:
+        raise ConfigError(str(err)) from None
+
+
+def _open_for_resume(prog: Program, cfg: TrainConfig, run: RunDir, given: Mapping[str, Any],
+                     steps: Optional[int], time_limit: Optional[float]) -> tuple[TrainConfig, Checkpoint]:
+    """Lock the run, check that it is the one asked for, and find its checkpoint."""
+    run.acquire(exclusive=True)
+    manifest = run.read_manifest()
+    if manifest["spec_hash"] != spec_hash(prog.source):
+        raise RunError(f"{run.path}: {prog.file} has changed since this run was trained; train a new run "
+                       "(another --out), or replace this one with --force")
+    try:
+        stored = TrainConfig.from_dict(manifest["config"])
+    except (ConfigError, TypeError) as err:
+        raise RunError(f"{run.manifest_path}: damaged manifest (its configuration: {err}); replace the run "
+                       f"with `{run.command(manifest, '--force')}`") from None
+    conflicts = _explicit_conflicts(stored, cfg, given)
+    if conflicts:
+        raise RunError(f"{run.path}: --resume continues the run as it was configured; it differs in "
+                       + "; ".join(conflicts))
+    if steps is not None:
+        stored.steps = int(steps)
+    if time_limit is not None:
+        stored.time_limit = float(time_limit)
+    ckpt = run.checkpoint(manifest)
+    if ckpt is None:
+        raise RunError(f"{run.path}: no checkpoint to resume from; train the run again with "
+                       f"`{run.command(manifest, '--force')}`")
+    return stored, ckpt
+
+
+def _run(prog: Program, cfg: TrainConfig, run: RunDir, stop: Interrupts, *, resume: bool, force: bool,
+         given: Mapping[str, Any], steps: Optional[int], time_limit: Optional[float],
+         progress: Optional[TrainProgress], callbacks: Sequence, evaluate: bool) -> TrainResult:
+    if resume:
+        cfg, ckpt = _open_for_resume(prog, cfg, run, given, steps, time_limit)
+        run.interrupts = stop
+        session = _Session(prog, cfg, run, progress, callbacks, stop)
+        with run.guard():
             model = session.restore(ckpt)
-            if cfg.steps <= int(model.num_timesteps) and run.read_manifest().get("status") == "finished":
+            if cfg.steps <= int(model.num_timesteps) and run.read_manifest()["status"] == "finished":
                 return _finished(run, cfg, session, evaluate)
-        else:
-            model = session.engine.build(cfg.algo, session.env, cfg.hyper, cfg.seed,
-                                         tensorboard_log=str(run.tensorboard_dir))
-        run.update_manifest(status="running", config=cfg.to_dict())
-        status = session.learn(model)
-    run.update_manifest(status=status, steps_done=int(model.num_timesteps), seconds=round(session.seconds, 3),
-                        best=session.best)
+            run.update_manifest(status="running", config=cfg.to_dict(), error=None)
+    else:
+        check_target(run.path, force)  # refused before anything is built
+        session = _Session(prog, cfg, run, progress, callbacks, stop)
+        model = session.engine.build(cfg.algo, session.env, cfg.hyper, cfg.seed, tensorboard_log=str(run.tensorboard_dir))
+        if stop.requested:  # nothing was created yet
+            raise KeyboardInterrupt
+        spec_file = str(Path(prog.file).resolve())
+        manifest = {"spec_file": spec_file, "spec_hash": spec_hash(prog.source), "task": cfg.task,
+                    "config": cfg.to_dict(), "versions": package_versions(), "status": "running", "steps_done": 0,
+                    "seconds": 0.0, "created": stamp()}
+        # Created whole, with a checkpoint at step 0: a run directory that exists can be resumed.
+        created = create_run(run.path, manifest, prog.source, force=force, interrupts=stop,
+                             initial=lambda staged: session.checkpoint(model, staged))
+        run.lock, run.interrupts = created.lock, stop  # the caller releases it
+    try:
+        with run.guard():
+            status = session.learn(model)
+            run.update_manifest(status=status, steps_done=int(model.num_timesteps),
+                                seconds=round(session.seconds, 3), best=session.best)
+    except KeyboardInterrupt:  # aborted by a third signal: the last checkpoint stands
+        try:
+            run.update_manifest(status="interrupted")
+        except RunError:
+            pass
+        raise
+    stop.__exit__()  # the evaluation that follows is not a run's write: Ctrl-C ends it at once
     result = TrainResult(run.path, cfg, int(model.num_timesteps), session.seconds, status, session.best,
                          curves=session.curves)
     if status == "finished" and evaluate:
         from .evaluation import evaluate as run_evaluation
 
-        result.evaluation = run_evaluation(run.path, episodes=cfg.eval_episodes, oracle="cache")
+        with run.guard(status="finished"):
+            result.evaluation = run_evaluation(run, episodes=cfg.eval_episodes, oracle="cache")
     return result
 
 
@@ -468,7 +492,8 @@ def _finished(run: RunDir, cfg: TrainConfig, session: _Session, evaluate: bool) 
     if evaluate:
         from .evaluation import evaluate as run_evaluation
 
-        result.evaluation = run_evaluation(run.path, episodes=cfg.eval_episodes, oracle="cache")
+        with run.guard(status="finished"):
+            result.evaluation = run_evaluation(run, episodes=cfg.eval_episodes, oracle="cache")
     return result
 
 
