@@ -1,10 +1,11 @@
 """Training engines side by side: sbx (JAX) against stable-baselines3 (torch) on one task.
 
 Each engine trains the same run (the default preset's settings for the algorithm, seed 0, no final
-evaluation) in a fresh process of its own, one after the other: the wall time of the training,
-its environment steps per second, the CPU time it used per second of wall time (above 1: more
-than one core), and then the cost of one gradient step alone (the run's checkpointed model and
-replay buffer, ``--grad-steps`` steps after a warm-up, best of three blocks). Prints the ratios.
+evaluation) in a fresh process of its own, one after the other: the wall time of the training, its
+CPU time (above the wall time: more than one core; on a busy machine the steadier figure), its
+environment steps per second, and then the cost of one gradient step alone (the run's checkpointed
+model and replay buffer, ``--grad-steps`` steps after a warm-up, best of three blocks). Prints the
+ratios.
 
     .venv/bin/python benchmarks/engines.py [--spec specs/dc_motor.asap] [--task reach_avoid]
         [--algo sac] [--steps 50000] [--variants sbx,sb3] [--grad-steps 1000]
@@ -46,15 +47,15 @@ def _child(args) -> dict:
         res = asap_dsl.train(args.spec, args.task, algo=args.algo, engine=engine, steps=args.steps, seed=0, out=out,
                              evaluate=False)
         wall, cpu = time.perf_counter() - wall0, time.process_time() - cpu0
-        row = {"variant": args.child, "steps": res.steps, "wall": wall, "training": res.seconds, "cpu_per_wall": cpu / wall,
+        row = {"variant": args.child, "steps": res.steps, "wall": wall, "cpu": cpu, "training": res.seconds,
                "validations": len(res.curves)}
         if args.algo in ("sac", "td3", "ddpg"):
-            row["grad_ms"] = _gradient_step_ms(get_engine(engine), args.algo, out / "checkpoint", res.config.hyper,
+            row["grad_ms"], row["grad_cpu_ms"] = _gradient_step_ms(get_engine(engine), args.algo, out / "checkpoint", res.config.hyper,
                                                args.grad_steps)
     return row
 
 
-def _gradient_step_ms(engine, algo: str, ckpt: Path, hyper: dict, n: int) -> float:
+def _gradient_step_ms(engine, algo: str, ckpt: Path, hyper: dict, n: int) -> tuple[float, float]:
     from stable_baselines3.common.logger import configure
 
     model = engine.load(algo, ckpt / "model.zip")
@@ -62,13 +63,13 @@ def _gradient_step_ms(engine, algo: str, ckpt: Path, hyper: dict, n: int) -> flo
     model.set_logger(configure(None, []))
     batch = int(hyper["batch_size"])
     model.train(gradient_steps=1, batch_size=batch)  # compiles (sbx)
-    best = float("inf")
+    wall = cpu = float("inf")
     for _ in range(3):
-        t = time.perf_counter()
+        t, c = time.perf_counter(), time.process_time()
         for _ in range(n):
             model.train(gradient_steps=1, batch_size=batch)  # what the loop does per vector step
-        best = min(best, (time.perf_counter() - t) / n)
-    return 1e3 * best
+        wall, cpu = min(wall, (time.perf_counter() - t) / n), min(cpu, (time.process_time() - c) / n)
+    return 1e3 * wall, 1e3 * cpu
 
 
 def main() -> int:
@@ -96,14 +97,16 @@ def main() -> int:
             return 1
         row = json.loads(r.stdout.strip().splitlines()[-1])
         rows.append(row)
-        grad = f", {row['grad_ms']:.3f} ms per gradient step" if "grad_ms" in row else ""
-        print(f"  {variant:<10} {row['wall']:7.1f} s for {row['steps']:,} steps ({row['steps'] / row['wall']:,.0f} "
-              f"steps/s, {row['validations']} validations), {row['cpu_per_wall']:.2f} CPU s per s{grad}", flush=True)
+        grad = f"; a gradient step {row['grad_ms']:.2f} ms ({row['grad_cpu_ms']:.2f} ms CPU)" if "grad_ms" in row else ""
+        print(f"  {variant:<10} {row['wall']:7.1f} s ({row['cpu']:.1f} s CPU) for {row['steps']:,} steps, "
+              f"{row['validations']} validations, {row['steps'] / row['wall']:,.0f} steps/s{grad}", flush=True)
     base = rows[-1]
     for row in rows[:-1]:
-        text = f"{base['variant']} / {row['variant']}: wall {base['wall'] / row['wall']:.2f}x"
+        text = (f"{base['variant']} / {row['variant']}: wall {base['wall'] / row['wall']:.2f}x, "
+                f"CPU {base['cpu'] / row['cpu']:.2f}x")
         if "grad_ms" in row:
-            text += f", gradient step {base['grad_ms'] / row['grad_ms']:.2f}x"
+            text += (f"; gradient step wall {base['grad_ms'] / row['grad_ms']:.2f}x, "
+                     f"CPU {base['grad_cpu_ms'] / row['grad_cpu_ms']:.2f}x")
         print(text)
     print(f"load average {os.getloadavg()[0]:.2f} at the end (other work on the machine inflates every time)")
     return 0

@@ -232,9 +232,10 @@ def test_both_engines_build_the_same_networks_on_the_same_spaces(algo):
         assert sbx.qf_learning_rate == cfg.hyper["learning_rate"]  # one rate for actor and critic, as in SB3
 
 
-def test_jax_loads_only_to_train_on_cpu_with_one_compute_thread(tmp_path):
+def test_jax_loads_only_to_train_on_cpu_with_one_compute_thread_and_a_disk_cache(tmp_path):
     code = f"""
 import os, sys
+from pathlib import Path
 from asap_dsl import cli
 spec = {str(ROOT / "specs" / "dc_motor.asap")!r}
 assert cli.main(["lint", spec]) == 0 and cli.main(["show", spec]) == 0
@@ -247,9 +248,11 @@ get_engine("sbx")._model_class("sac")
 import jax
 assert "--xla_cpu_multi_thread_eigen=false" in os.environ["XLA_FLAGS"]
 assert {{d.platform for d in jax.devices()}} == {{"cpu"}}
+jax.jit(lambda x: 2 * x + 1)(1.0)  # compiled once per machine: kept in the project's cache directory
+assert any(p.name.startswith("jit_") for p in (Path(os.environ["ASAP_CACHE_DIR"]) / "jax").iterdir())
 print("ok")
 """
-    env = {k: v for k, v in os.environ.items() if k not in ("XLA_FLAGS", "JAX_PLATFORMS")}
+    env = {k: v for k, v in os.environ.items() if not k.startswith(("XLA_", "JAX_"))}
     r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300, env=env,
                        cwd=str(tmp_path))
     assert r.returncode == 0 and r.stdout.strip().endswith("ok"), r.stderr
