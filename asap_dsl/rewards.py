@@ -223,7 +223,8 @@ def _checked(syn, text: str, dt: Optional[float]) -> RewardModel:
     model, found = check_reward(syn, text, "--reward", dt)
     if model is None:
         d = next(d for d in found if d.is_error)
-        raise ValueError(d.message + (f"; {d.hint}" if d.hint else ""))
+        where = "" if "reward" in d.message else f" in the reward {text!r}"  # `unknown constant 'x'`: where
+        raise ValueError(d.message + where + (f"; {d.hint}" if d.hint else ""))
     return dataclasses.replace(model, span=None)  # no place in a file
 
 

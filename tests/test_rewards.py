@@ -99,7 +99,7 @@ def test_distance_needs_region_atoms(line):
     ("rhoo", "did you mean 'rho'"),
     ("rho(width = 3)", "has no setting 'width'"),
     ("rho(window = 0)", "at least one step"),
-    ("distance(lambda_t = x)", "unknown constant 'x'"),
+    ("distance(lambda_t = x)", "unknown constant 'x' in the reward 'distance\\(lambda_t = x\\)'"),
 ])
 def test_bad_reward_names(line, bad, message):
     with pytest.raises(ValueError, match=message):
