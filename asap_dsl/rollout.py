@@ -46,6 +46,7 @@ class RolloutResult:
     steps: int                  # the episode length (the deadline)
     trajectories: Optional[np.ndarray] = None  # [N, steps + 1, n], NaN after the end (record=True)
     actions: Optional[np.ndarray] = None       # [N, steps, m], NaN after the end (record=True)
+    rho: Optional[np.ndarray] = None           # [N, steps + 1] ρ of asap, NaN from a failure or the end (robustness=True)
 
     @property
     def episodes(self) -> int:
@@ -97,12 +98,23 @@ class Evaluator:
     def action_space(self):
         return self.core.action_space
 
-    def run(self, controller: Controller, record: bool = False) -> RolloutResult:
-        """Roll every state out under ``controller``; one ``act`` call per step for the batch."""
+    def run(self, controller: Controller, record: bool = False, *, states: Optional[np.ndarray] = None,
+            steps: Optional[int] = None, robustness: bool = False) -> RolloutResult:
+        """Roll every state out under ``controller``; one ``act`` call per step for the batch.
+
+        ``states``: other initial states of the same shape (the environment is reused: the
+        planner judges each batch of candidates here); ``steps``: a shorter or longer episode;
+        ``robustness``: also keep ρ of ``asap`` at every step (the planner's search signal).
+        """
         from .env import END_REASONS
 
-        core, N, T = self.core, len(self.states), self.steps
-        obs = core.start(self.states, T)
+        core, N = self.core, len(self.states)
+        T = self.steps if steps is None else int(steps)
+        x0 = self.states if states is None else np.asarray(states, dtype=np.float64)
+        if x0.shape != self.states.shape or T < 1:
+            raise ValueError(f"states must have shape {self.states.shape} and steps be at least 1; got "
+                             f"{x0.shape} and {T}")
+        obs = core.start(x0, T)
         controller.reset(core.states.copy())
         t_reach = np.where(core.asap.sat, 0.0, np.inf)
         end = np.zeros(N, dtype=np.int64)       # 0 while running, else an index into END_REASONS
@@ -114,6 +126,10 @@ class Evaluator:
             traj = np.full((N, T + 1, core.n), np.nan)
             acts = np.full((N, T, m), np.nan)
             traj[:, 0] = core.states
+        rho = None
+        if robustness:
+            rho = np.full((N, T + 1), np.nan)
+            rho[:, 0] = core.asap.rob
         for t in range(T):
             running = end == 0
             if not running.any():
@@ -130,9 +146,12 @@ class Evaluator:
             if record:
                 traj[running, t + 1] = core.states[running]
                 acts[running, t] = a[running]
+            if rho is not None:
+                ok = running & ~failed
+                rho[ok, t + 1] = core.asap.step_rob[ok]
         end[end == 0] = 4  # time_limit (never reached when every entry ran the full T steps)
         reasons = np.array([END_REASONS[i] for i in end], dtype=object)
-        return RolloutResult(self.states.copy(), t_reach, reasons, end_step, returns, T, traj, acts)
+        return RolloutResult(x0.copy(), t_reach, reasons, end_step, returns, T, traj, acts, rho)
 
 
 def rollout(program, task: Optional[str], controller: Controller, states: np.ndarray, reward: Any = None,

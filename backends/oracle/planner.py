@@ -1,0 +1,397 @@
+"""The sampling planner: an achievable number of steps per initial state, through the simulator.
+
+For every system — a black-box ``simulator`` included — and every task, the planner searches
+action sequences from one initial state for the first step at which ``asap`` holds, with
+``avoid``, leaving the state space and a non-finite state as failure. Every candidate is rolled
+out by the project's own batched rollout (:class:`asap_dsl.rollout.Evaluator`, the very
+environment policies are judged in), so what the planner finds is what a controller replaying
+its sequence achieves; :mod:`~asap_dsl.backends.oracle.planning` replays every found sequence
+once more before it counts. A found sequence's steps are an upper bound on that state's minimum,
+so the share of states within a tolerance is a **lower bound on the ceiling**: the label is
+``planner (achievable)``.
+
+The search (measured against MPPI and predictive sampling in docs/oracle.md, "The planner"):
+cross-entropy over piecewise-constant action sequences — ``knots`` values per action held for
+``hold`` steps each, in the action box's normalised units — with a Gaussian per knot, clipped to
+the box (so bang-bang actions, which minimum time often needs, have mass). Each iteration rolls
+``samples`` candidates out as one batch; the cost of a candidate is a soft first hitting time,
+
+    cost = min over steps t before any failure of  t + D * v_t / v_0,
+
+where ``v_t = max(0, -rho_t)`` is how far ``asap``'s robustness is from holding at step t
+(``v_0`` at the initial state) and ``D`` the deadline: a candidate that reaches at step t costs
+at most t, one that only comes close is ranked by how close and how soon. A failure before
+reaching adds ``D``. The elite (the cheapest ``elite`` share) sets the next mean and spread
+(smoothed); the best elites are carried over. Once a sequence reaches at step N, candidates are
+rolled out for N - 1 steps only: only an earlier arrival can improve on it.
+
+Budget: ``samples`` candidates per iteration, ``iterations`` iterations, and the per-state time
+limit (as the oracle's ``--state-time-limit``). The random numbers of a state are seeded by the
+seed and the state itself, so a state's result depends neither on the order of the states nor on
+the number of workers.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import math
+import time
+from dataclasses import asdict, dataclass, replace
+from typing import Callable, Optional, Sequence
+
+import numpy as np
+
+from asap_dsl.rollout import Evaluator
+from asap_dsl.sampling import EVAL_SEED
+
+from .results import StateResult
+from .search import STATE_TIME_LIMIT
+
+__all__ = ["BOUND", "LABEL", "METHODS", "PlannedState", "Planner", "PlannerBudget", "PlannerUnsupported",
+           "SequenceController"]
+
+#: The planner's results are achievable steps: upper bounds on each minimum, a lower bound on the ceiling.
+LABEL = "achievable"
+BOUND = f"planner ({LABEL})"
+METHODS = ("cem", "mppi", "ps")
+
+
+class PlannerUnsupported(ValueError):
+    """The planner cannot run on this system or task (one sentence says why)."""
+
+
+@dataclass(frozen=True)
+class PlannerBudget:
+    """What the planner may spend per initial state, and how it searches.
+
+    ``samples`` candidate sequences per iteration, ``iterations`` iterations (the time limit per
+    state caps both); ``hold`` steps per knot of the piecewise-constant sequences; ``method``:
+    ``cem`` (cross-entropy), ``mppi`` (path-integral weights) or ``ps`` (predictive sampling:
+    the best candidate is the next mean, the spread fixed).
+    """
+
+    samples: int = 128
+    iterations: int = 30
+    hold: int = 1
+    method: str = "cem"
+    elite: float = 0.1
+    smoothing: float = 0.2
+    sigma: float = 0.5
+    keep: float = 0.5
+    pilot: int = 4
+    pilot_hold: int = 5
+    islands: int = 8
+    exchange: int = 16
+    refine_sigma: float = 0.3
+    explore: str = "mix"
+    mix: float = 0.05
+
+    def __post_init__(self):
+        if self.method not in METHODS:
+            raise ValueError(f"the planner's method must be one of {', '.join(METHODS)}; got {self.method!r}")
+        for name in ("samples", "iterations", "hold"):
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, int) or v < 1:
+                raise ValueError(f"the planner's {name} must be a whole number, at least 1; got {v!r}")
+        if self.samples < 8:
+            raise ValueError(f"the planner needs at least 8 samples per iteration; got {self.samples}")
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+
+@dataclass
+class PlannedState(StateResult):
+    """The planner's answer for one state: ``steps`` achieved by ``actions`` (an upper bound on
+    the state's minimum; ``verified`` once replayed), ``rollouts`` candidates in ``iterations``.
+    Statuses: ``solved``, ``not_found`` (no candidate reached within the deadline), ``timeout``
+    (none reached before the time limit), ``nan`` (a non-finite initial state), ``unverified``
+    (the replay did not reach: not counted)."""
+
+    rollouts: int = 0
+    iterations: int = 0
+
+    def to_dict(self, with_actions: bool = False) -> dict:
+        d = {"index": self.index, "x0": [float(v) for v in self.x0], "steps": self.steps, "status": self.status,
+             "verified": self.verified, "rollouts": self.rollouts, "iterations": self.iterations,
+             "seconds": round(self.seconds, 6)}
+        if self.source is not None:
+            d["source"] = self.source
+        if with_actions:
+            d["actions"] = None if self.actions is None else self.actions.tolist()
+        return d
+
+    @classmethod
+    def from_dict(cls, d: dict) -> "PlannedState":
+        acts = d.get("actions")
+        return cls(d["index"], np.asarray(d["x0"], float), d["steps"], d["status"], d["verified"],
+                   actions=None if acts is None else np.asarray(acts, float).reshape(len(acts), -1),
+                   seconds=d.get("seconds", 0.0), source=d.get("source"), rollouts=d.get("rollouts", 0),
+                   iterations=d.get("iterations", 0))
+
+
+class SequenceController:
+    """Replays one action sequence per entry of the batch (``[B, H, m]``; zeros after step H)."""
+
+    def __init__(self, actions: np.ndarray):
+        self.actions = np.asarray(actions, dtype=np.float64)
+
+    def reset(self, states: np.ndarray) -> None:
+        if len(states) != len(self.actions):
+            raise ValueError(f"{len(self.actions)} sequences for a batch of {len(states)}")
+
+    def act(self, obs: np.ndarray, states: np.ndarray, t: int) -> np.ndarray:
+        if t < self.actions.shape[1]:
+            return self.actions[:, t]
+        return np.zeros((len(self.actions), self.actions.shape[2]))
+
+
+def state_seed(seed: int, x0: np.ndarray) -> np.random.Generator:
+    """The random numbers of one state: a function of the seed and the state's own numbers."""
+    digest = hashlib.sha256(np.asarray(x0, dtype=np.float64).tobytes()).digest()
+    return np.random.default_rng([int(seed) & 0xFFFFFFFF, *np.frombuffer(digest[:16], dtype=np.uint32).tolist()])
+
+
+def check_state_setting(evaluator: Evaluator, system) -> None:
+    """One sentence when the simulator cannot be started from a given state (the planner rolls
+    every candidate out from the state it plans for)."""
+    from asap_dsl.sim import SimulatorError
+
+    core = evaluator.core
+    probe = np.tile((np.clip(system.init_low, system.state_low, system.state_high)
+                     + np.clip(system.init_high, system.state_low, system.state_high)) / 2, (core.B, 1))
+    probe = np.where(np.isfinite(probe), probe, 0.0)
+    try:
+        out = core.sim.reset(probe)
+        same = np.allclose(out, probe, rtol=1e-9, atol=1e-9)
+        why = "its reset(states) returned other states than it was given"
+    except SimulatorError as err:
+        same, why = False, str(err).split(": ", 2)[-1]
+    if not same:
+        raise PlannerUnsupported(
+            f"{core.sim.where}: simulator \"{system.simulator or system.kind}\" cannot be started from a given "
+            f"state ({why}); the planner needs reset(states [B, n]) to set every entry to the given state "
+            "(docs/language.md, the simulator protocol)")
+
+
+class Planner:
+    """The sampling planner for one task (built once, planned for many states).
+
+    :param prog: the program (:func:`asap_dsl.load`); any system, a black box included.
+    :param task: the task's name (default: the program's only or first task).
+    :param budget: samples, iterations and the search's settings (:class:`PlannerBudget`).
+    :param time_limit: seconds of search per state, then the best found so far (``timeout``
+        when none reached).
+    :param seed: the seed of every state's random numbers (with the state itself).
+    :raises PlannerUnsupported: a simulator that cannot be started from a given state.
+    :raises KeyError: an unknown task.
+    """
+
+    def __init__(self, prog, task: Optional[str] = None, budget: Optional[PlannerBudget] = None,
+                 time_limit: float = STATE_TIME_LIMIT, seed: int = EVAL_SEED):
+        self.prog = prog
+        self.budget = budget or PlannerBudget()
+        if not (isinstance(time_limit, (int, float)) and math.isfinite(time_limit) and time_limit > 0):
+            raise ValueError(f"the time limit per state must be a positive number of seconds; got {time_limit!r}")
+        self.time_limit = float(time_limit)
+        self.seed = int(seed)
+        self.task = prog.task(task)
+        self.task_name = self.task.name
+        tm = self.task.model
+        sysm = self.system = prog.system
+        self.n, self.m = sysm.n_state, sysm.n_action
+        self.deadline = int(tm.deadline)
+        self.tolerances = tuple(int(t) for t in tm.tolerances)
+        self.low, self.high = sysm.action_low.astype(float), sysm.action_high.astype(float)
+        self.K = self.budget.samples
+        probe = np.zeros((self.K, self.n))
+        self.evaluator = Evaluator(prog, self.task_name, probe)
+        check_state_setting(self.evaluator, sysm)
+        self.knots = -(-self.deadline // self.budget.hold)
+        self.weight = 10.0
+        self.refine_terminal = False
+
+    # ------------------------------------------------------------------ sequences
+    def actions(self, z: np.ndarray) -> np.ndarray:
+        """Knots in normalised units ``[K, knots, m]`` (in [-1, 1]) as actions ``[K, deadline, m]``."""
+        u = self.low + (np.clip(z, -1.0, 1.0) + 1.0) * 0.5 * (self.high - self.low)
+        return np.repeat(u, self.budget.hold, axis=1)[:, : self.deadline]
+
+    def evaluate(self, x0: np.ndarray, z: np.ndarray, steps: int, terminal: bool) -> tuple[np.ndarray, np.ndarray]:
+        """Roll the candidates ``z`` out from ``x0`` for ``steps`` steps: ``(t_reach [K], cost [K])``."""
+        K = len(z)
+        U = self.actions(z)
+        if K < self.K:  # pad to the environment's batch (the padding is never read)
+            U = np.concatenate([U, np.repeat(U[-1:], self.K - K, axis=0)])
+        res = self.evaluator.run(SequenceController(U[:, :steps]), states=np.tile(x0, (self.K, 1)), steps=steps,
+                                 robustness=True)
+        t_reach, rho = res.t_reach[:K], res.rho[:K]
+        failed = np.isin(res.end_reason[:K], ("avoid", "out_of_bounds", "non_finite")) & ~np.isfinite(t_reach)
+        return t_reach, self.cost(t_reach, rho, failed, terminal)
+
+    def try_sequences(self, x0: np.ndarray, sequences: Sequence[np.ndarray], steps: int) -> np.ndarray:
+        """The first step in ``asap`` (inf: none within ``steps``) of each action sequence from ``x0``."""
+        out = []
+        for at in range(0, len(sequences), self.K):
+            part = sequences[at: at + self.K]
+            U = np.zeros((self.K, steps, self.m)) + (self.low + self.high) / 2
+            for i, a in enumerate(part):
+                a = np.asarray(a, dtype=np.float64).reshape(-1, self.m)[:steps]
+                U[i, : len(a)] = a
+            res = self.evaluator.run(SequenceController(U), states=np.tile(x0, (self.K, 1)), steps=steps)
+            out.append(res.t_reach[: len(part)])
+        return np.concatenate(out) if out else np.zeros(0)
+
+    def exchange(self, x0: Sequence[float], index: int, pool: Sequence[np.ndarray],
+                 own: Optional["PlannedState"]) -> "PlannedState":
+        """``own`` (this state's result), or the shortest of ``pool`` (other states' sequences)
+        that reaches sooner from ``x0``."""
+        x0 = np.asarray(x0, dtype=np.float64).ravel()
+        start = time.perf_counter()
+        best = own.steps if own is not None and own.steps is not None else None
+        steps = self.deadline if best is None else best - 1
+        if steps < 1 or not len(pool) or not np.all(np.isfinite(x0)):
+            return own if own is not None else PlannedState(index, x0, None, "not_found", False)
+        t = self.try_sequences(x0, pool, steps)
+        k = int(np.argmin(t))
+        base = own if own is not None else PlannedState(index, x0, None, "not_found", False)
+        if not np.isfinite(t[k]):
+            return base
+        n = int(t[k])
+        return replace(base, steps=n, status="solved", actions=np.asarray(pool[k], float).reshape(-1, self.m)[:n],
+                       source="another state", rollouts=base.rollouts + len(pool),
+                       seconds=base.seconds + time.perf_counter() - start)
+
+    def cost(self, t_reach: np.ndarray, rho: np.ndarray, failed: np.ndarray, terminal: bool) -> np.ndarray:
+        """A candidate's cost (module docstring): its first hitting step where it reaches, else
+        the steps plus ``W`` times how far ``asap`` is from holding (relative to the initial
+        state) — at the last step (``terminal``), or at the best step — plus ``W`` on a failure."""
+        W = self.weight * self.deadline
+        with np.errstate(invalid="ignore", over="ignore"):
+            v = np.maximum(0.0, -rho)
+            v0 = np.where(np.isfinite(v[:, :1]) & (v[:, :1] > 0), v[:, :1], 1.0)
+            soft = np.arange(rho.shape[1])[None, :] + W * (v / v0)
+        soft = np.where(np.isnan(soft), np.inf, soft)
+        last = np.where(np.isnan(rho), -1, np.arange(rho.shape[1])[None, :]).argmax(axis=1)
+        c_term = soft[np.arange(len(soft)), last] + (rho.shape[1] - 1 - last)
+        c_min = np.min(soft[:, 1:], axis=1) if soft.shape[1] > 1 else soft[:, 0]  # step 0: no information
+        mode = self.budget.explore if terminal else "min"
+        c = c_term if mode == "terminal" else c_min if mode == "min" else c_min + self.budget.mix * c_term
+        c = np.where(failed, c + W, c)
+        c = np.where(np.isfinite(t_reach), np.minimum(c, t_reach), c)
+        return np.where(np.isfinite(c), c, 1e6 * W)
+
+    # ------------------------------------------------------------------ search
+    def _fixed(self, warm: Sequence[np.ndarray]) -> np.ndarray:
+        """Candidates of the first population: constant actions at the centre and the corners of
+        the action box (bang-bang), and the warm starts given (as knots)."""
+        m = self.m
+        corners = np.array(np.meshgrid(*[[-1.0, 1.0]] * m, indexing="ij")).reshape(m, -1).T
+        fixed = [np.zeros((1, m))] + [c[None, :] for c in corners[: max(0, self.K // 8 - 1)]]
+        z = [np.broadcast_to(f, (self.knots, m))[None] for f in fixed] + [self._to_knots(w)[None] for w in warm]
+        return np.concatenate(z)[: self.K // 2]
+
+    def _population(self, kept: np.ndarray, mu: np.ndarray, sigma: np.ndarray,
+                    rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+        """``kept`` candidates, then fresh ones from the islands' Gaussians in turn; each
+        candidate's island (the kept ones: the island of the nearest mean)."""
+        R, K = len(mu), self.K
+        fresh_island = np.arange(K - len(kept)) % R
+        fresh = mu[fresh_island] + sigma[fresh_island] * rng.standard_normal((K - len(kept),) + mu.shape[1:])
+        z = np.concatenate([kept, np.clip(fresh, -1.5, 1.5)])
+        if R == 1 or not len(kept):
+            return z, np.concatenate([np.zeros(len(kept), dtype=int), fresh_island])
+        d = ((kept[:, None] - mu[None]) ** 2).sum(axis=(2, 3))
+        return z, np.concatenate([np.argmin(d, axis=1), fresh_island])
+
+    def _to_knots(self, actions: np.ndarray) -> np.ndarray:
+        """An action sequence (any length) as knots in normalised units, the last action held."""
+        a = np.asarray(actions, dtype=np.float64).reshape(-1, self.m)
+        if len(a) == 0:
+            a = np.zeros((1, self.m)) + (self.low + self.high) / 2
+        full = np.concatenate([a, np.repeat(a[-1:], max(0, self.deadline - len(a)), axis=0)])[: self.deadline]
+        z = 2.0 * (full - self.low) / np.where(self.high > self.low, self.high - self.low, 1.0) - 1.0
+        return z[:: self.budget.hold][: self.knots]
+
+    def _shifted(self, z: np.ndarray, steps: int, rng: np.random.Generator) -> np.ndarray:
+        """The sequence ``z`` with one knot before step ``steps`` removed (the rest moved one knot
+        earlier): the natural candidates for arriving earlier, as in a bang-bang plan whose phase
+        is one step shorter. At most a quarter of the population, the knots chosen at random."""
+        last = min(self.knots, -(-steps // self.budget.hold))
+        js = np.arange(last)
+        if len(js) > self.K // 4:
+            js = np.sort(rng.choice(js, self.K // 4, replace=False))
+        return np.stack([np.concatenate([z[:j], z[j + 1:], z[-1:]]) for j in js]) if len(js) else z[:0]
+
+    def plan(self, x0: Sequence[float], index: int = 0, warm: Sequence[np.ndarray] = (),
+             iterations: Optional[int] = None, islands: int = 1) -> "PlannedState":
+        """The fewest steps found from ``x0`` (the planner's sequence, not yet replayed).
+
+        ``warm``: action sequences to try first (another state's, for instance); ``iterations``:
+        instead of the budget's; ``islands``: populations searched side by side until one
+        reaches (one at the centre of the action box, the others around random sequences), for
+        dynamics where doing little is a local optimum (the pilot of
+        :func:`~asap_dsl.backends.oracle.planning.plan_states`)."""
+        start = time.perf_counter()
+        b = self.budget
+        x0 = np.asarray(x0, dtype=np.float64).ravel()
+        if x0.shape != (self.n,) or not np.all(np.isfinite(x0)):
+            return PlannedState(index, x0, None, "nan", False, seconds=time.perf_counter() - start)
+        rng = state_seed(self.seed, x0)
+        self.trace: list = []  # (steps rolled out, cheapest cost, best steps, mean spread) per iteration
+        K, shape = self.K, (self.knots, self.m)
+        # exploration: islands, one at the centre of the action box, the others at random sequences
+        R = max(1, min(int(islands), K // 8))
+        mu = np.concatenate([np.zeros((1,) + shape), rng.uniform(-1, 1, (R - 1,) + shape)])
+        sigma = np.full((R,) + shape, b.sigma)
+        z, island = self._population(self._fixed(warm), mu, sigma, rng)
+        best_t, best_z = math.inf, None
+        rollouts = iters = 0
+        timed_out = False
+        for it in range(b.iterations if iterations is None else int(iterations)):
+            if time.perf_counter() - start > self.time_limit:
+                timed_out = True
+                break
+            found = math.isfinite(best_t)
+            steps = int(best_t) - 1 if found else self.deadline
+            if steps < 1:
+                break  # reached at step 1 (or 0): nothing is earlier
+            t_reach, cost = self.evaluate(x0, z, steps, terminal=not found)
+            rollouts += len(z)
+            iters += 1
+            k = int(np.argmin(t_reach))
+            if t_reach[k] < best_t:
+                best_t, best_z = float(t_reach[k]), z[k].copy()
+                if not found:  # one population around it from now on
+                    R, island = 1, np.zeros(K, dtype=int)
+                    mu, sigma = best_z[None].copy(), np.full((1,) + shape, b.refine_sigma)
+            self.trace.append((steps, float(cost.min()), best_t, float(sigma.mean())))
+            kept = []
+            for r in range(R):
+                members = np.flatnonzero(island == r)
+                order = members[np.argsort(cost[members], kind="stable")]
+                n_elite = max(2, int(round(b.elite * len(members))))
+                elite = z[order[:n_elite]]
+                if b.method == "cem":
+                    new_mu, new_sigma = elite.mean(axis=0), elite.std(axis=0)
+                elif b.method == "mppi":
+                    c = cost[members] - cost[order[0]]
+                    lam = max(1e-9, float(np.mean(cost[order[:n_elite]] - cost[order[0]])) or 1.0)
+                    w = np.exp(-c / lam)
+                    new_mu, new_sigma = np.tensordot(w / w.sum(), z[members], axes=1), sigma[r]
+                else:  # predictive sampling: the best is the nominal
+                    new_mu, new_sigma = z[order[0]], sigma[r]
+                mu[r] = b.smoothing * mu[r] + (1 - b.smoothing) * new_mu
+                sigma[r] = np.maximum(b.smoothing * sigma[r] + (1 - b.smoothing) * new_sigma, 0.02)
+                kept.append(elite[: max(1, int(round(b.keep * n_elite)))])
+            kept = np.concatenate(kept)
+            if best_z is not None:
+                kept = np.concatenate([best_z[None], kept, self._shifted(best_z, int(best_t), rng)])[: K // 2]
+            z, island = self._population(kept, mu, sigma, rng)
+        seconds = time.perf_counter() - start
+        if best_z is None:
+            return PlannedState(index, x0, None, "timeout" if timed_out else "not_found", False, seconds=seconds,
+                                rollouts=rollouts, iterations=iters)
+        U = self.actions(best_z[None])[0, : int(best_t)]
+        return PlannedState(index, x0, int(best_t), "solved", False, actions=U, seconds=seconds, rollouts=rollouts,
+                            iterations=iters)
