@@ -14,7 +14,8 @@ from typing import Callable, Optional
 from ..limits import LIMITS, available_cores
 
 __all__ = ["CliError", "EMPTY_TASK", "InputError", "UsageError", "add_episodes", "add_format", "add_seed",
-           "add_task", "add_workers", "check_task", "episodes_int", "names_list", "natural_int", "positive_amount",
+           "add_task", "add_workers", "check_task", "episodes_int", "names_list", "natural_int", "planner_samples",
+           "positive_amount",
            "positive_int", "seed_int", "steps_int", "tolerances_list", "workers"]
 
 
@@ -75,6 +76,14 @@ def seed_int(text: str) -> int:
     value = _whole(text)
     if not 0 <= value < 2**32:
         raise argparse.ArgumentTypeError(f"a seed is between 0 and 2^32 - 1, got {value}")
+    return value
+
+
+def planner_samples(text: str) -> int:
+    """argparse type: the planner's candidates per iteration, 8 .. 65,536 (one batch of the simulator)."""
+    value = _whole(text)
+    if not 8 <= value <= 65536:
+        raise argparse.ArgumentTypeError(f"the planner needs 8 to 65,536 samples per iteration, got {value:,}")
     return value
 
 

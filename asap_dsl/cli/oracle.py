@@ -16,8 +16,8 @@ from typing import Optional, TextIO
 
 from ..formatting import percent, steps_text
 from ..sampling import EVAL_SEED
-from .args import (InputError, add_episodes, add_format, add_seed, add_task, add_workers, check_task, positive_amount,
-                   workers)
+from .args import (InputError, add_episodes, add_format, add_seed, add_task, add_workers, check_task, planner_samples,
+                   positive_amount, positive_int, workers)
 
 __all__ = ["add_oracle_arguments", "fill_oracle_subparser", "oracle_command", "render_text"]
 
@@ -43,6 +43,15 @@ def add_oracle_arguments(p: argparse.ArgumentParser) -> None:
     add_format(p)
     p.add_argument("--states", action="store_true",
                    help="with --format json: include every state's x0, steps, status and actions")
+    from asap_dsl.backends.oracle.planner import PlannerBudget
+
+    b = PlannerBudget()
+    p.add_argument("--planner", action="store_true",
+                   help="plan through the simulator (planner (achievable), as on a black box) also for known dynamics")
+    p.add_argument("--samples", type=planner_samples, default=b.samples, metavar="N",
+                   help=f"the planner's candidate sequences per iteration (default {b.samples})")
+    p.add_argument("--iterations", type=positive_int, default=b.iterations, metavar="N",
+                   help=f"the planner's iterations per state (default {b.iterations})")
 
 
 def render_text(report, out: TextIO) -> None:
@@ -50,20 +59,57 @@ def render_text(report, out: TextIO) -> None:
     d = report.to_dict(with_states=False)
     c = d["status"]
     n = d["episodes"]
-    out.write(f"{d['file']}: task {d['task']} (system {d['system']}) — oracle ({d['label']}), "
+    out.write(f"{d['file']}: task {d['task']} (system {d['system']}) — {d.get('bound') or 'oracle (' + d['label'] + ')'}, "
               f"{n} initial states, seed {d['seed']}, deadline {d['deadline']} steps, "
               f"{d['seconds']:.1f} s on {d['workers']} worker(s)\n")
+    if "planner" in d:
+        _render_planned(d, out)
+        return
     if d["label"] == "local":
         out.write("  IPOPT local optima: each minimum is an upper bound on that state's true minimum time\n")
     else:
         out.write("  convex feasibility problems: the minima are exact\n")
-    out.write("\n  tolerance  ceiling   95% CI            states\n")
+    _render_rates(d, "minimum steps", out)
+    out.write(f"\n  no way found within the deadline: {d['unreachable_within_deadline']}/{n}"
+              f" (infeasible {c['infeasible']}, solver failed {c['solver_failed']}, timeout {c['timeout']}, nan {c['nan']})\n")
+    if c["timeout"]:
+        out.write(f"  timeout: {c['timeout']} state(s) undecided after their search time (--state-time-limit); "
+                  "the ceiling counts them as not reached, so it may be low\n")
+    out.write(f"  solver failures: {c['solver_failures']} solves on {c['states_with_solver_failures']} states; "
+              f"unverified by replay: {c['unverified']}\n")
+    _render_tightened(d, out)
+
+
+def _render_planned(d: dict, out: TextIO) -> None:
+    """The planner's report: its budget, the achievable rates (lower bounds on the ceiling)."""
+    b, c, n = d["planner"], d["status"], d["episodes"]
+    out.write(f"  budget: {b['samples']} samples x {b['iterations']} iterations per state (at most "
+              f"{b['time_limit']:g} s), {b['method']}, a pilot of {b['pilot']}x; {b['rollouts']:,} rollouts\n")
+    out.write("  each state's steps are those of a sequence replayed to the goal: upper bounds on its minimum, "
+              "so each rate is a lower bound on the ceiling\n")
+    _render_rates(d, "achieved steps", out, "achieved")
+    out.write(f"\n  no sequence found within the deadline: {d['unreachable_within_deadline']}/{n}"
+              f" (not found {c.get('not_found', 0)}, timeout {c['timeout']}, unverified by replay "
+              f"{c.get('unverified', 0)}, nan {c['nan']})\n")
+    _render_tightened(d, out)
+
+
+def _render_tightened(d: dict, out: TextIO) -> None:
+    t = d.get("tightened")
+    if t and t["from"]:
+        out.write(f"  tightened with the solutions of {', '.join(t['from'])} (replayed under this task): "
+                  f"{t['improved_states']} states improved\n")
+
+
+def _render_rates(d: dict, what: str, out: TextIO, column: str = "ceiling") -> None:
+    """The rate per tolerance with its interval, and the distribution of the steps."""
+    out.write(f"\n  tolerance  {column:<8}  95% CI            states\n")
     for row in d["ceiling"]:
         lo, hi = row["ci95"]
         out.write(f"  {row['tolerance']:>9}  {percent(row['rate'], 5)}  [{percent(lo, 5)}, {percent(hi, 5)}]  "
                   f"{row['count']:>5}/{row['states']}\n")
     dist = d["distribution"]
-    out.write("\n  minimum steps: ")
+    out.write(f"\n  {what}: ")
     if dist.get("reached", 0):
         out.write(steps_text(dist) + "\n")
         hist = dist["histogram"]
@@ -74,24 +120,13 @@ def render_text(report, out: TextIO) -> None:
             out.write(f"  {k:>5}  {hist[k]:>6}  {bar}\n")
     else:
         out.write("no state reaches the goal\n")
-    out.write(f"\n  no way found within the deadline: {d['unreachable_within_deadline']}/{n}"
-              f" (infeasible {c['infeasible']}, solver failed {c['solver_failed']}, timeout {c['timeout']}, nan {c['nan']})\n")
-    if c["timeout"]:
-        out.write(f"  timeout: {c['timeout']} state(s) undecided after their search time (--state-time-limit); "
-                  "the ceiling counts them as not reached, so it may be low\n")
-    out.write(f"  solver failures: {c['solver_failures']} solves on {c['states_with_solver_failures']} states; "
-              f"unverified by replay: {c['unverified']}\n")
-    t = d.get("tightened")
-    if t and t["from"]:
-        out.write(f"  tightened with the solutions of {', '.join(t['from'])} (replayed under this task): "
-                  f"{t['improved_states']} states improved\n")
 
 
 class _Progress:
     """States done, rate and time left, on one line of a terminal (nothing elsewhere)."""
 
-    def __init__(self, stream: TextIO, task: str, total: int):
-        self.stream, self.task, self.total, self.done = stream, task, total, 0
+    def __init__(self, stream: TextIO, task: str, total: int, what: str = "oracle"):
+        self.stream, self.task, self.total, self.done, self.what = stream, task, total, 0, what
         self.start = time.perf_counter()
         self.live = hasattr(stream, "isatty") and stream.isatty()
 
@@ -103,7 +138,7 @@ class _Progress:
         rate = self.done / spent if spent > 0 else 0.0
         left = (self.total - self.done) / rate if rate > 0 else float("inf")
         eta = "--" if left == float("inf") else f"{int(left // 60)}m{int(left % 60):02d}s"
-        self.stream.write(f"\r  oracle {self.task}: {self.done}/{self.total} states, {rate:.2f} states/s, "
+        self.stream.write(f"\r  {self.what} {self.task}: {self.done}/{self.total} states, {rate:.2f} states/s, "
                           f"{eta} left   ")
         self.stream.flush()
 
@@ -120,6 +155,8 @@ def oracle_command(args: argparse.Namespace, out: Optional[TextIO] = None, err: 
     ``out`` and ``err`` (standard output and error by default) take the report and the progress."""
     import asap_dsl
     from asap_dsl.backends.oracle.cache import store
+    from asap_dsl.backends.oracle.planner import PlannerBudget, PlannerUnsupported
+    from asap_dsl.backends.oracle.planning import plan_states, tighten_planned
     from asap_dsl.backends.oracle.solver import OracleUnsupported, run, tighten
 
     out = out or sys.stdout
@@ -132,12 +169,18 @@ def oracle_command(args: argparse.Namespace, out: Optional[TextIO] = None, err: 
     if not tasks:
         raise InputError(f"{args.file} has no task")
     reports, skipped = [], []
+    planned = args.planner or prog.system.kind == "simulator"
     for t in tasks:
-        progress = _Progress(err, t, args.episodes)
+        progress = _Progress(err, t, args.episodes, "planner" if planned else "oracle")
         try:
-            rep = run(prog, t, episodes=args.episodes, seed=args.seed, workers=n_workers,
-                      time_limit=args.state_time_limit, progress=progress)
-        except OracleUnsupported as e:
+            if planned:  # a black box, or --planner: an achievable bound through the simulator
+                rep = plan_states(prog, t, episodes=args.episodes, seed=args.seed, workers=n_workers,
+                                  budget=PlannerBudget(samples=args.samples, iterations=args.iterations),
+                                  time_limit=args.state_time_limit, progress=progress)
+            else:
+                rep = run(prog, t, episodes=args.episodes, seed=args.seed, workers=n_workers,
+                          time_limit=args.state_time_limit, progress=progress)
+        except (OracleUnsupported, PlannerUnsupported) as e:
             skipped.append({"task": t, "reason": str(e)})
             err.write(f"asapc: {'error' if args.task else 'note'}: {args.file}: task {t} is not solved: {e}\n")
             continue
@@ -145,7 +188,7 @@ def oracle_command(args: argparse.Namespace, out: Optional[TextIO] = None, err: 
             progress.close()
         reports.append(rep)
     if len(reports) > 1:  # tasks sharing `asap`: make their local minima consistent (replay-verified)
-        tighten(prog, reports)
+        (tighten_planned if planned else tighten)(prog, reports)
     for rep in reports:  # `asapc eval` and reports reuse these minima on the same states
         store(prog.source, rep)
     if args.format == "text":

@@ -1,4 +1,5 @@
-"""The oracle's results on the seeded evaluation states, cached per spec hash, task, seed and count.
+"""The oracle's results on the seeded evaluation states, cached per spec hash, task, seed and count
+(the planner's achievable steps beside them, in ``planner/``).
 
 ``asapc oracle``, ``asapc eval`` and reports compute the same minimum times for the same states;
 the first one to need them stores them here and the others read them back. The cache lives in
@@ -29,8 +30,9 @@ def cache_dir() -> Path:
     return Path(base) / "asap-dsl"
 
 
-def cache_path(source: str, task: str, seed: int, episodes: int) -> Path:
-    return cache_dir() / "oracle" / f"{spec_hash(source)[:16]}-{task}-s{seed}-n{episodes}.json"
+def cache_path(source: str, task: str, seed: int, episodes: int, kind: str = "oracle") -> Path:
+    """Where the results of ``kind`` (``oracle``, or ``planner``: the achievable steps) are kept."""
+    return cache_dir() / kind / f"{spec_hash(source)[:16]}-{task}-s{seed}-n{episodes}.json"
 
 
 class CachedOracle:
@@ -48,7 +50,8 @@ class CachedOracle:
 
     @property
     def bound(self) -> str:
-        return f"oracle ({self.label})"
+        """``oracle (exact)``, ``oracle (local)`` or ``planner (achievable)``."""
+        return self.data.get("bound") or f"oracle ({self.label})"
 
     def ceiling(self, tolerance: int) -> dict:
         from asap_dsl.stats import rate
@@ -56,8 +59,8 @@ class CachedOracle:
         return {"tolerance": int(tolerance), **rate(self.steps <= tolerance)}
 
 
-def load(source: str, task: str, seed: int, episodes: int) -> Optional[CachedOracle]:
-    path = cache_path(source, task, seed, episodes)
+def load(source: str, task: str, seed: int, episodes: int, kind: str = "oracle") -> Optional[CachedOracle]:
+    path = cache_path(source, task, seed, episodes, kind)
     try:
         data = json.loads(path.read_text(encoding="utf-8"))
     except (OSError, ValueError):
@@ -68,18 +71,29 @@ def load(source: str, task: str, seed: int, episodes: int) -> Optional[CachedOra
 
 
 def store(source: str, report) -> Path:
-    """Store an :class:`~asap_dsl.backends.oracle.solver.OracleReport` computed on the seeded states."""
-    path = cache_path(source, report.task, report.seed, len(report.results))
+    """Store an :class:`~asap_dsl.backends.oracle.solver.OracleReport` computed on the seeded states
+    (the planner's apart from the oracle's)."""
+    path = cache_path(source, report.task, report.seed, len(report.results), _kind(report.label))
     atomic_write_json(path, report.to_dict(with_states=True, with_actions=True))
     return path
+
+
+def _kind(label: str) -> str:
+    from .planner import LABEL
+
+    return "planner" if label == LABEL else "oracle"
 
 
 def oracle_for(prog, task: str, seed: int, episodes: int, compute: bool = True,
                workers: Optional[int] = None) -> Optional[CachedOracle]:
     """The cached results, computed (and stored) first when absent and ``compute``; None for a
-    black-box system or a task the oracle cannot express (nothing to compare against)."""
+    task the oracle cannot express (nothing to compare against). A black-box system has the
+    planner's achievable steps when ``asapc oracle`` has stored them (they take minutes per
+    hundred states, so they are never computed on the way)."""
+    if prog.system.kind == "simulator":
+        return load(prog.source, task, seed, episodes, "planner")
     hit = load(prog.source, task, seed, episodes)
-    if hit is not None or not compute or prog.system.kind == "simulator":
+    if hit is not None or not compute:
         return hit
     from .solver import OracleUnsupported, run
 

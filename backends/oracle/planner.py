@@ -83,8 +83,6 @@ class PlannerBudget:
     islands: int = 8
     exchange: int = 16
     refine_sigma: float = 0.3
-    explore: str = "mix"
-    mix: float = 0.05
 
     def __post_init__(self):
         if self.method not in METHODS:
@@ -125,7 +123,7 @@ class PlannedState(StateResult):
     def from_dict(cls, d: dict) -> "PlannedState":
         acts = d.get("actions")
         return cls(d["index"], np.asarray(d["x0"], float), d["steps"], d["status"], d["verified"],
-                   actions=None if acts is None else np.asarray(acts, float).reshape(len(acts), -1),
+                   actions=None if acts is None else np.asarray(acts, float).reshape(len(acts), -1) if acts else np.zeros((0, 0)),
                    seconds=d.get("seconds", 0.0), source=d.get("source"), rollouts=d.get("rollouts", 0),
                    iterations=d.get("iterations", 0))
 
@@ -158,9 +156,10 @@ def check_state_setting(evaluator: Evaluator, system) -> None:
     from asap_dsl.sim import SimulatorError
 
     core = evaluator.core
-    probe = np.tile((np.clip(system.init_low, system.state_low, system.state_high)
-                     + np.clip(system.init_high, system.state_low, system.state_high)) / 2, (core.B, 1))
-    probe = np.where(np.isfinite(probe), probe, 0.0)
+    lo = np.clip(system.init_low, system.state_low, system.state_high)
+    hi = np.clip(system.init_high, system.state_low, system.state_high)
+    frac = (np.arange(core.B)[:, None] + 1.0) / (core.B + 1.0)  # another state in every entry
+    probe = np.where(np.isfinite(lo) & np.isfinite(hi), lo + frac * (hi - lo), 0.0)
     try:
         out = core.sim.reset(probe)
         same = np.allclose(out, probe, rtol=1e-9, atol=1e-9)
@@ -272,11 +271,11 @@ class Planner:
             v0 = np.where(np.isfinite(v[:, :1]) & (v[:, :1] > 0), v[:, :1], 1.0)
             soft = np.arange(rho.shape[1])[None, :] + W * (v / v0)
         soft = np.where(np.isnan(soft), np.inf, soft)
-        last = np.where(np.isnan(rho), -1, np.arange(rho.shape[1])[None, :]).argmax(axis=1)
-        c_term = soft[np.arange(len(soft)), last] + (rho.shape[1] - 1 - last)
-        c_min = np.min(soft[:, 1:], axis=1) if soft.shape[1] > 1 else soft[:, 0]  # step 0: no information
-        mode = self.budget.explore if terminal else "min"
-        c = c_term if mode == "terminal" else c_min if mode == "min" else c_min + self.budget.mix * c_term
+        if terminal:  # the last step before any failure (or the end)
+            last = np.where(np.isnan(rho), -1, np.arange(rho.shape[1])[None, :]).argmax(axis=1)
+            c = soft[np.arange(len(soft)), last] + (rho.shape[1] - 1 - last)
+        else:  # step 0 is every candidate's: no information
+            c = np.min(soft[:, 1:], axis=1) if soft.shape[1] > 1 else soft[:, 0]
         c = np.where(failed, c + W, c)
         c = np.where(np.isfinite(t_reach), np.minimum(c, t_reach), c)
         return np.where(np.isfinite(c), c, 1e6 * W)
@@ -321,7 +320,9 @@ class Planner:
         js = np.arange(last)
         if len(js) > self.K // 4:
             js = np.sort(rng.choice(js, self.K // 4, replace=False))
-        return np.stack([np.concatenate([z[:j], z[j + 1:], z[-1:]]) for j in js]) if len(js) else z[:0]
+        if not len(js):
+            return np.zeros((0,) + z.shape)
+        return np.stack([np.concatenate([z[:j], z[j + 1:], z[-1:]]) for j in js])
 
     def plan(self, x0: Sequence[float], index: int = 0, warm: Sequence[np.ndarray] = (),
              iterations: Optional[int] = None, islands: int = 1) -> "PlannedState":
@@ -370,7 +371,7 @@ class Planner:
             for r in range(R):
                 members = np.flatnonzero(island == r)
                 order = members[np.argsort(cost[members], kind="stable")]
-                n_elite = max(2, int(round(b.elite * len(members))))
+                n_elite = max(4, int(round(b.elite * len(members))))
                 elite = z[order[:n_elite]]
                 if b.method == "cem":
                     new_mu, new_sigma = elite.mean(axis=0), elite.std(axis=0)

@@ -202,7 +202,7 @@ def _pilot(prog, planner: Planner, budget: PlannerBudget, time_limit: float, see
     if budget.pilot < 1:
         return PlannedState(-1, centre, None, "not_found", False)
     coarse = replace(budget, hold=max(budget.hold, budget.pilot_hold))
-    pilot = planner if coarse == budget else Planner(prog, planner.task_name, coarse, time_limit, seed)
+    pilot = Planner(prog, planner.task_name, coarse, time_limit * budget.pilot, seed)
     return pilot.plan(centre, -1, iterations=budget.iterations * budget.pilot, islands=budget.islands)
 
 

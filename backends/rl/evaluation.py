@@ -127,7 +127,7 @@ def summarise(result: RolloutResult, *, method: str, prog: Program, task: str, s
     if oracle is not None:
         info = {"bound": oracle.bound, "label": oracle.label, "seconds": oracle.seconds}
     elif prog.system.kind == "simulator":
-        info = {"reason": "none: the system is a black box (no oracle)"}
+        info = {"reason": "not computed for this black box (`asapc oracle` plans through the simulator: planner (achievable))"}
     else:
         info = {"reason": "not computed (run `asapc oracle` or evaluate without --no-oracle)"}
     per_state = {"t_reach": [None if not np.isfinite(x) else int(x) for x in result.t_reach],
