@@ -17,7 +17,7 @@ from .diagnostics import closest as _closest
 from .domains import DomainChecker
 from .expr import (BUILTIN_CONSTANTS, FUNCTION_ARITY, Symbols, compile_scalar, evaluate_constant, interval_range,
                    nodes_in, scalar_comparison)
-from .formatting import number
+from .formatting import number, plural
 from .intervals import Interval
 from .limits import LIMITS
 from .model import FormulaModel, RegionModel
@@ -118,7 +118,7 @@ class Numbers:
                 raise _Unresolved
             arity = FUNCTION_ARITY[e.func]
             if (arity is not None and len(e.args) != arity) or (arity is None and not e.args):
-                want = f"{arity} argument{'s' if arity != 1 else ''}" if arity else "at least one argument"
+                want = plural(arity, "argument") if arity else "at least one argument"
                 self.d.add("E104", f"{e.func}() takes {want}, given {len(e.args)}", e.span)
                 raise _Unresolved
             each(lambda a: self.number(a, allowed, context), e.args)
