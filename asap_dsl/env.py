@@ -284,6 +284,17 @@ def infos(core: EnvCore) -> list[dict]:
                     core.info_end.tolist(), core.info_t.tolist()))
 
 
+def with_terminal(out: list[dict], done: np.ndarray, term: np.ndarray, trunc: np.ndarray,
+                  final_obs: np.ndarray) -> list[dict]:
+    """SB3's autoreset contract on the infos of a step: each finished entry's info gets its
+    ``terminal_observation`` (``final_obs``: one row per finished entry, in order) and
+    ``TimeLimit.truncated`` (the episode hit its length, no failure)."""
+    for j, i in enumerate(np.flatnonzero(done)):
+        out[i]["terminal_observation"] = final_obs[j]
+        out[i]["TimeLimit.truncated"] = bool(trunc[i] and not term[i])
+    return out
+
+
 def _info(rho: float, satisfied: bool, t_reach: int, end: int, t: int) -> dict:
     return {"rho": rho, "satisfied": satisfied, "t_reach": None if t_reach < 0 else t_reach,
             "end_reason": END_REASONS[end], "t": t}
@@ -338,6 +349,7 @@ class AsapVecEnv(_vec_base()):
         self.program, self.task = program, self.core.task
         self.core.rng = np.random.default_rng(seed)
         self._actions = None
+        self._vec_step = getattr(self.core, "vec_step", None)
 
     # SB3 interface
     def reset(self):
@@ -358,13 +370,13 @@ class AsapVecEnv(_vec_base()):
         return obs, r.astype(np.float32), term, trunc
 
     def step_wait(self):
+        if self._vec_step is not None:  # the compiled core's own, without per-entry arrays (asap_dsl.native)
+            return self._vec_step(self._actions)
         obs, r, term, trunc = self.step_arrays(self._actions)
         out = infos(self.core)
         done = self.last_done
         if done.any():
-            for j, i in enumerate(np.flatnonzero(done)):
-                out[i]["terminal_observation"] = self.last_final_obs[j]
-                out[i]["TimeLimit.truncated"] = bool(trunc[i] and not term[i])
+            with_terminal(out, done, term, trunc, self.last_final_obs)
         return obs, r, done.copy(), out
 
     def close(self) -> None:

@@ -14,6 +14,7 @@ from typing import Any, Optional
 
 import numpy as np
 
+from ..env import _info, with_terminal
 from ..sampling import init_box
 from . import draws
 from .cache import Loaded, load
@@ -56,7 +57,7 @@ def _signatures(kernel: Kernel):
     from numba import types as nt
 
     f64, i64, f32 = nt.float64[:, ::1], nt.int64[:, ::1], nt.float32[:, ::1]
-    rest = (f64, i64, f32, nt.boolean[:, ::1])
+    rest = (f64, i64, f32, nt.float32[::1], nt.boolean[:, ::1])
     sigs = {"restart": [(nt.boolean[::1], f64, i64, f32)]}
     if kernel.black_box:
         sigs["post"] = [(f64,) + rest]
@@ -113,10 +114,10 @@ class NativeCore:
         self.t, self.k, self.t_reach, self.end = (irows[:, j] for j in (c.t, c.k, c.t_reach, c.end))
         self.asap = _Live(rows[:, c.arob], irows[:, c.asat])
         self.info_t_reach, self.info_end, self.info_t = (irows[:, j] for j in (c.info_t_reach, c.info_end, c.info_t))
-        self._rew, self._rho = rows[:, c.rew], rows[:, c.rho]
-        self.info_rho = np.zeros(B)
+        self._rew = rows[:, c.rew]
+        self.info_rho = rows[:, c.rho]
         self.info_sat = np.zeros(B, dtype=bool)
-        self._obs_shape = (B, c.n_obs)
+        self._obs_shape, self._act_shape = (B, c.n_obs), (B, self.m)
         self._all = np.ones(B, dtype=bool)
         self.final_states = None
         self.rng = inner.rng  # the generator's addresses into row B
@@ -173,7 +174,7 @@ class NativeCore:
         obs = np.empty(self._obs_shape, dtype=np.float32)
         self._start(s, np.broadcast_to(np.asarray(k, dtype=np.int64), (self.B,)), self._all, obs)
         self.end[:] = 0
-        self.info_rho = self._finite_rho(self.asap.rob)
+        self.info_rho[:] = self._finite_rho(self.asap.rob)
         self.info_sat = self.asap.sat > 0
         self.info_t_reach[:], self.info_end[:], self.info_t[:] = self.t_reach, 0, 0
         return obs
@@ -189,33 +190,58 @@ class NativeCore:
             raise ValueError(f"actions must have shape [{self.B}, {self.m}]; got {np.shape(actions)}")
         return np.ascontiguousarray(a)
 
-    def step(self, actions):
-        """Advance every entry; returns (obs, reward, terminated, truncated, final_obs, done)."""
+    def _advance(self, actions):
+        """One compiled step: (obs, float32 rewards, flags, final_obs or None)."""
         a = actions
-        if (type(a) is not np.ndarray or (a.dtype is not _F32 and a.dtype is not _F64) or a.shape != (self.B, self.m)
-                or not a.flags.c_contiguous):
+        # Anything but a float32/float64 array of the right shape is converted (another memory
+        # layout compiles once more, on first use).
+        if type(a) is not np.ndarray or (a.dtype is not _F32 and a.dtype is not _F64) or a.shape != self._act_shape:
             a = self._actions(actions)
         obs = np.empty(self._obs_shape, dtype=np.float32)
+        rew = np.empty(self.B, dtype=np.float32)
         flags = np.empty((5, self.B), dtype=bool)
         if self._black_box:
             new = np.ascontiguousarray(self.sim.step(a), dtype=np.float64)
-            ndone = self._post(new, self.F, self.I, obs, flags)
+            ndone = self._post(new, self.F, self.I, obs, rew, flags)
         else:
-            ndone = self._step(a, self.F, self.I, obs, flags)
-        if ndone < 0:
-            from ..sampling import INIT_BOX_IN_AVOID
-
-            raise ValueError(INIT_BOX_IN_AVOID)
-        self.info_rho, self.info_sat = self._rho.copy(), flags[4]
-        done = flags[2]
+            ndone = self._step(a, self.F, self.I, obs, rew, flags)
         final_obs = None
-        if ndone and self.autoreset:
-            c, B = self.cols, self.B
-            final_obs = self.F[:B][done, c.final_obs: c.final_obs + c.n_obs].astype(np.float32)
-            self.final_states = self.F[:B][done, c.final: c.final + self.n]
-            if self._black_box:
-                self._autoreset(done, flags[3], obs)
-        return obs, self._rew.copy(), flags[0], flags[1], final_obs, done
+        if ndone:
+            if ndone < 0:
+                from ..sampling import INIT_BOX_IN_AVOID
+
+                raise ValueError(INIT_BOX_IN_AVOID)
+            if self.autoreset:
+                c, done = self.cols, flags[2]
+                rows = self.F[:self.B][done]
+                final_obs = rows[:, c.final_obs: c.final_obs + c.n_obs].astype(np.float32)
+                self.final_states = rows[:, c.final: c.final + self.n]
+                if self._black_box:
+                    self._autoreset(done, flags[3], obs)
+        return obs, rew, flags, final_obs
+
+    def step(self, actions):
+        """Advance every entry; returns (obs, reward, terminated, truncated, final_obs, done)."""
+        obs, _, flags, final_obs = self._advance(actions)
+        self.info_sat = flags[4]
+        return obs, self._rew.copy(), flags[0], flags[1], final_obs, flags[2]
+
+    def vec_step(self, actions):
+        """SB3's ``step_wait``: (obs, float32 rewards, dones, infos), the infos of finished entries
+        with ``terminal_observation`` and ``TimeLimit.truncated`` (:func:`asap_dsl.env.with_terminal`)."""
+        obs, rew, flags, final_obs = self._advance(actions)
+        c, F, I = self.cols, self.F, self.I
+        self.info_sat = flags[4]
+        if self.B == 1:  # one dict from the rows' items: no arrays made for it
+            out = [_info(F.item(0, c.rho), flags.item(4, 0), I.item(0, c.info_t_reach), I.item(0, c.info_end),
+                         I.item(0, c.info_t))]
+        else:
+            out = list(map(_info, self.info_rho.tolist(), flags[4].tolist(), self.info_t_reach.tolist(),
+                           self.info_end.tolist(), self.info_t.tolist()))
+        done = flags[2]
+        if final_obs is not None:
+            with_terminal(out, done, flags[0], flags[1], final_obs)
+        return obs, rew, done, out
 
     def _autoreset(self, done: np.ndarray, late: np.ndarray, obs: np.ndarray) -> None:
         """A black-box simulator's finished entries started afresh (the compiled step draws and

@@ -59,7 +59,9 @@ def bounded_integer(dst: str, low: int, high: int, ind: str) -> list[str]:
     if r == 0:  # numpy draws nothing
         return [f"{ind}{dst} = {int(low)}"]
     if not 0 < r < 0xFFFFFFFF:
-        raise ValueError(f"episode lengths {low}..{high}: a range beyond 32 bits")
+        from .exprs import NotCovered
+
+        raise NotCovered(f"episode lengths {low}..{high}: a range beyond 32 bits")
     excl = r + 1
     threshold = (0xFFFFFFFF - r) % excl
     U = "np.uint64"

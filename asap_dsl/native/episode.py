@@ -186,6 +186,7 @@ def finish_lines(spec: StepSpec, c: Cols) -> list[str]:
           f"I[b, {c.end}] = end"]
     L += obs_lines(spec, "X", "t", f"I[b, {c.k}]", "obs[b, {i}]")
     L += [f"F[b, {c.rew}] = r",
+          "rew32[b] = r",
           # np.nan_to_num: NaN as 0, ±inf (an empty past window) as the formula's bounds
           f"F[b, {c.rho}] = 0.0 if ar != ar else ({number(rhi)} if ar == _INF else "
           f"({number(rlo)} if ar == -_INF else ar))",

@@ -3,12 +3,12 @@
 :func:`generate` writes, from a :class:`~asap_dsl.native.episode.StepSpec`, the functions the
 compiled core calls, each a loop over the batch:
 
-* ``step(actions, F, I, obs, flags) -> finished entries`` (``ode`` and ``map``): the actions
+* ``step(actions, F, I, obs, rew32, flags) -> finished entries`` (``ode`` and ``map``): the actions
   clipped, the dynamics with the integrator's substeps, the rest of the step
   (:func:`~asap_dsl.native.episode.finish_lines`), then, with autoreset, the finished entries'
   fresh episodes drawn from the numpy generator's stream (:mod:`.draws`) and started; -1 when
   no initial state outside ``avoid`` could be drawn;
-* ``post(new, F, I, obs, flags)`` (black-box simulators): the same from the states the simulator
+* ``post(new, F, I, obs, rew32, flags)`` (black-box simulators): the same from the states the simulator
   reached, without the autoreset (the simulator is reset in Python);
 * ``restart(mask, F, I, obs)``: the masked entries start (step 0) at the state in their
   ``cand`` columns, with the episode length in their ``kc`` column.
@@ -16,7 +16,8 @@ compiled core calls, each a loop over the batch:
 ``F [B + 1, ·]`` (float64) and ``I [B + 1, ·]`` (int64) hold every entry's values
 (:class:`~asap_dsl.native.episode.Cols`, then the monitors' own); row ``B`` is scratch for the
 checks of candidate initial states, and its ``I`` row holds the autoreset flag and the
-generator's addresses. ``flags [5, B]``: terminated, truncated, done, done only by a non-finite
+generator's addresses. ``obs`` and ``rew32`` (float32, what SB3 stores) are written afresh each
+step; ``flags [5, B]``: terminated, truncated, done, done only by a non-finite
 value found after the end reasons (its fresh episode is drawn after the others', as the numpy
 core does), and asap satisfied (info's).
 """
@@ -181,7 +182,7 @@ def generate(spec: StepSpec) -> Kernel:
     loop = ["    B = F.shape[0] - 1", "    zero = B - B  # step 0 typed as the steps are",
             "    ndone = 0", "    for b in range(B):", f"        S = {_tuple([f'F[b, {i}]' for i in range(n)])}"]
     if black_box:
-        src += head + ["def post(new, F, I, obs, flags):", *loop,
+        src += head + ["def post(new, F, I, obs, rew32, flags):", *loop,
                        f"        N = {_tuple([f'new[b, {i}]' for i in range(n)])}",
                        *_indent(finish_lines(spec, c), " " * 8), "    return ndone"]
     else:
@@ -190,7 +191,7 @@ def generate(spec: StepSpec) -> Kernel:
         for j in range(m):  # CheckedSimulator.step's np.clip into the action bounds
             clip += [f"a{j} = np.float64(actions[b, {j}])", f"a{j} = {mx(f'a{j}', number(lo[j]))}",
                      f"a{j} = {mn(f'a{j}', number(hi[j]))}"]
-        src += head + ["def step(actions, F, I, obs, flags):", *loop,
+        src += head + ["def step(actions, F, I, obs, rew32, flags):", *loop,
                        *_indent(clip + [f"A = {_tuple([f'a{j}' for j in range(m)])}"] + _advance(spec), " " * 8),
                        *_indent(finish_lines(spec, c), " " * 8),
                        *_indent(_autoreset(spec, c), "    "), "    return ndone"]
