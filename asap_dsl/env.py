@@ -289,9 +289,10 @@ def with_terminal(out: list[dict], done: np.ndarray, term: np.ndarray, trunc: np
     """SB3's autoreset contract on the infos of a step: each finished entry's info gets its
     ``terminal_observation`` (``final_obs``: one row per finished entry, in order) and
     ``TimeLimit.truncated`` (the episode hit its length, no failure)."""
-    for j, i in enumerate(np.flatnonzero(done)):
-        out[i]["terminal_observation"] = final_obs[j]
-        out[i]["TimeLimit.truncated"] = bool(trunc[i] and not term[i])
+    limit = (trunc & ~term).tolist()
+    for i, row in zip(np.flatnonzero(done).tolist(), final_obs):
+        out[i]["terminal_observation"] = row
+        out[i]["TimeLimit.truncated"] = limit[i]
     return out
 
 
