@@ -103,7 +103,7 @@ class HandEnv(gym.Env):
 
 # ---- the dynamics alone, compiled ----------------------------------------------------------------
 
-@njit(cache=True)
+@njit
 def _attitude(x, u):
     w1, w2, w3, p1, p2, p3 = x[0], x[1], x[2], x[3], x[4], x[5]
     s = p1 * p1 + p2 * p2 + p3 * p3
@@ -113,35 +113,37 @@ def _attitude(x, u):
             0.5 * (w1 * (s - p2) + w2 * (s + p1) + w3 * (s + 1)))
 
 
-@njit(cache=True)
+@njit
 def _bicycle(x, u):
     beta = math.atan(BETA * math.tan(u[0]))
     return (x[3] * math.cos(x[2] + beta), x[3] * math.sin(x[2] + beta), x[3] / L_R * math.sin(beta), u[1])
 
 
-def _rk4_kernel(f, n):
-    @njit  # a closure: compiled in each run
+def _axpy(n):
+    terms = ", ".join(f"x[{i}] + a * k[{i}]" for i in range(n))
+    rk4 = ", ".join(f"x[{i}] + c * (k1[{i}] + 2 * k2[{i}] + 2 * k3[{i}] + k4[{i}])" for i in range(n))
+    ns: dict = {}
+    exec(f"def axpy(x, a, k):\n    return ({terms},)\n"  # noqa: S102 - the same line per component
+         f"def rk4(x, c, k1, k2, k3, k4):\n    return ({rk4},)\n", ns)
+    return njit(ns["axpy"]), njit(ns["rk4"])
+
+
+def _rk4_kernel(f, n, m):
+    """RK4 with 4 substeps, the state and the action as tuples (registers: nothing in memory)."""
+    axpy, comb = _axpy(n)
+
+    @njit  # a closure over f: compiled in each run
     def step(X, U):
         h = 0.1 / 4
-        x, x2, u = np.empty(n), np.empty(n), np.empty(U.shape[1])  # once per call, not per entry
         for b in range(X.shape[0]):
-            for j in range(U.shape[1]):
-                u[j] = U[b, j]
-            for i in range(n):
-                x[i] = X[b, i]
+            u = (U[b, 0], U[b, 1], U[b, 2]) if m == 3 else (U[b, 0], U[b, 1])
+            x = (X[b, 0], X[b, 1], X[b, 2], X[b, 3], X[b, 4], X[b, 5]) if n == 6 else (X[b, 0], X[b, 1], X[b, 2], X[b, 3])
             for _ in range(4):
                 k1 = f(x, u)
-                for i in range(n):
-                    x2[i] = x[i] + 0.5 * h * k1[i]
-                k2 = f(x2, u)
-                for i in range(n):
-                    x2[i] = x[i] + 0.5 * h * k2[i]
-                k3 = f(x2, u)
-                for i in range(n):
-                    x2[i] = x[i] + h * k3[i]
-                k4 = f(x2, u)
-                for i in range(n):
-                    x[i] = x[i] + h / 6 * (k1[i] + 2 * k2[i] + 2 * k3[i] + k4[i])
+                k2 = f(axpy(x, 0.5 * h, k1), u)
+                k3 = f(axpy(x, 0.5 * h, k2), u)
+                k4 = f(axpy(x, h, k3), u)
+                x = comb(x, h / 6, k1, k2, k3, k4)
             for i in range(n):
                 X[b, i] = x[i]
         return X
@@ -170,9 +172,9 @@ def _exact_kernel(Ad, Bd):
 def kernel(name: str, program=None):
     """``step(X [B, n] float64, U [B, m]) -> X`` in place: the named system's dynamics alone."""
     if name == "attitude":
-        return _rk4_kernel(_attitude, 6)
+        return _rk4_kernel(_attitude, 6, 3)
     if name == "bicycle":
-        return _rk4_kernel(_bicycle, 4)
+        return _rk4_kernel(_bicycle, 4, 2)
     from asap_dsl.dynamics import zero_order_hold
 
     Ad, Bd, _ = zero_order_hold(program.system)  # the motor's c is 0
