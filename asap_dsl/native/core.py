@@ -277,6 +277,12 @@ def native_core(inner, require: bool = False):
             return core
         except NotCovered as err:
             reason = str(err)
+        except Exception as err:  # noqa: BLE001 - a failure of the generator or of numba: a bug
+            if require:
+                raise
+            log.warning("the compiled step of %s task %s could not be built (numpy steps it instead): %s: %s",
+                        inner.program.file, inner.task.name, type(err).__name__, str(err).splitlines()[0])
+            return inner
     if require:
         raise ValueError(f"the compiled step does not cover task {inner.task.name}: {reason}")
     log.info("numpy step for %s task %s: %s", inner.program.file, inner.task.name, reason)
