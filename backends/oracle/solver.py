@@ -29,6 +29,7 @@ search used up its time, :data:`STATE_TIME_LIMIT` by default, before deciding: n
 
 from __future__ import annotations
 
+import signal
 import time
 from dataclasses import replace
 from typing import Callable, Optional, Sequence
@@ -105,6 +106,13 @@ def tighten(prog, reports: Sequence["OracleReport"]) -> dict[str, int]:
 _WORKER_ORACLES: dict = {}  # in a worker process: one Oracle (and its built solvers) per setting
 
 
+def _init_worker() -> None:
+    """A worker's signals: the pool's terminate (SIGTERM) ends it quietly, whatever handler it
+    inherited from the parent, and Ctrl-C is the parent's to handle (it terminates the pool)."""
+    signal.signal(signal.SIGTERM, signal.SIG_DFL)
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+
 def _worker(payload):
     """Process entry: re-load the spec from its text (programs hold compiled closures), once per
     process and setting: the chunks a worker solves share its solvers and warm starts."""
@@ -169,7 +177,7 @@ def run(prog, task: Optional[str] = None, episodes: int = 1000, seed: int = EVAL
                      restarts, interval_bound, time_limit) for c in chunks if len(c)]
         method = "fork" if "fork" in mp.get_all_start_methods() else "spawn"
         parts = []
-        with mp.get_context(method).Pool(workers) as pool:
+        with mp.get_context(method).Pool(workers, initializer=_init_worker) as pool:
             for part in pool.imap_unordered(_worker, payloads):
                 parts.append(part)
                 if progress is not None:
