@@ -6,16 +6,22 @@
     prog.task("reach").spec.robustness(traces)
 """
 
-from .diagnostics import Diagnostic, SpecError
-from .program import Formula, Program, Task, load, loads
-
 __version__ = "0.1.0"
+
+# The front end loads on first use too: `asapc` must be able to install its signal handlers before
+# anything heavy is imported (a SIGTERM in the first second ends it as Ctrl-C does, exit 130).
+_FRONT = {"Diagnostic": "diagnostics", "SpecError": "diagnostics", "Formula": "program", "Program": "program",
+          "Task": "program", "load": "program", "loads": "program"}
 
 __all__ = ["Diagnostic", "Formula", "Program", "SpecError", "Task", "evaluate", "load", "loads", "make_env",
            "make_vec_env", "train", "__version__"]
 
 
 def __getattr__(name):  # lazy: gymnasium, stable-baselines3 and torch load only when needed
+    if name in _FRONT:
+        import importlib
+
+        return getattr(importlib.import_module(f"{__name__}.{_FRONT[name]}"), name)
     if name in ("make_env", "make_vec_env"):
         from . import env
 

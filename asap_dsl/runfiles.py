@@ -92,8 +92,9 @@ def is_write_error(err: BaseException) -> bool:
 
 
 @contextmanager
-def writing(path: PathLike) -> Iterator[None]:
-    """Turn a failed write of ``path`` into :class:`RunWriteError` (the file the OS names, if any)."""
+def writing(path: PathLike, exact: bool = False) -> Iterator[None]:
+    """Turn a failed write of ``path`` into :class:`RunWriteError`, naming the file the OS names
+    (or ``path`` itself with ``exact``: a temporary's name would tell the user nothing)."""
     try:
         yield
         return
@@ -102,7 +103,7 @@ def writing(path: PathLike) -> Iterator[None]:
     except OSError as err:
         if not is_write_error(err):
             raise
-        failure = RunWriteError(err.filename or path, _reason(err), code=err.errno)
+        failure = RunWriteError(path if exact else (err.filename or path), _reason(err), code=err.errno)
         # The writer's frames hold its open file: let it go, so that removing the partial file
         # frees the space (a full disk must have room for the manifest's "failed" afterwards).
         traceback.clear_frames(err.__traceback__)
@@ -141,17 +142,17 @@ def atomic_path(path: PathLike) -> Iterator[Path]:
     and ``path`` is left as it was; a failed write is :class:`RunWriteError`.
     """
     path = Path(path)
-    with writing(path):
+    with writing(path, exact=True):
         path.parent.mkdir(parents=True, exist_ok=True)
         fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp" + "".join(path.suffixes[-1:]),
                                    dir=path.parent)
         os.close(fd)
     tmp_path = Path(tmp)
     try:
-        with writing(tmp_path):
+        with writing(path, exact=True):
             os.chmod(tmp_path, 0o666 & ~_UMASK)  # mkstemp makes 0600; a run's files are as readable as any other
         yield tmp_path
-        with writing(tmp_path):
+        with writing(path, exact=True):
             with open(tmp_path, "rb+") as f:  # the data is on disk before the name points at it
                 os.fsync(f.fileno())
             os.replace(tmp_path, path)
@@ -167,7 +168,7 @@ def atomic_write(path: PathLike, data: Union[str, bytes]) -> None:
     """Write ``data`` to ``path`` atomically (text as UTF-8)."""
     raw = data.encode("utf-8") if isinstance(data, str) else data
     with atomic_path(path) as tmp:
-        with writing(tmp):
+        with writing(path, exact=True):
             tmp.write_bytes(raw)
 
 

@@ -43,13 +43,13 @@ from contextlib import contextmanager, nullcontext
 from pathlib import Path
 from typing import Any, Callable, Iterator, Mapping, Optional, Union
 
-from .runfiles import (_UMASK, LOCK_FILE, _reason, DirLock, RunBusy, RunError, RunWriteError, atomic_path, atomic_write, command_line,
-                       exchange, file_record, fsync_dir, is_write_error, lock_dir, record_mismatch, remove_tree, shown,
-                       writing)
+from .runfiles import (_UMASK, LOCK_FILE, DirLock, RunBusy, RunError, RunWriteError, _reason, atomic_path,
+                       atomic_write, command_line, exchange, file_record, fsync_dir, is_write_error, lock_dir,
+                       record_mismatch, remove_tree, shell_quote, shown, writing)
 
 __all__ = ["Checkpoint", "RunBusy", "RunDir", "RunError", "RunWriteError", "atomic_path", "atomic_write",
            "atomic_write_json", "check_target", "checkpoint_seconds", "command_line", "create_run", "default_run_name", "json_safe",
-           "package_versions", "read_json", "spec_hash"]
+           "package_versions", "read_json", "shell_quote", "spec_hash"]
 
 MANIFEST = "run.json"
 SPEC_COPY = "spec.asap"
@@ -340,7 +340,7 @@ class RunDir:
         ``changes``), then renamed in. Returns its record."""
         with self._critical("the best model"):
             with atomic_path(self.model_path) as tmp:
-                with writing(tmp):
+                with writing(self.model_path, exact=True):
                     write(tmp)
                 record = file_record(tmp)
                 self.update_manifest(model=record, **changes)
@@ -605,18 +605,19 @@ def check_target(path: PathLike, force: bool) -> bool:
 
 
 def create_run(path: PathLike, manifest: Mapping[str, Any], source: str, *, force: bool,
-               initial: Callable[[RunDir], None], interrupts=None) -> RunDir:
+               initial: Callable[[RunDir], None], interrupts=None, held: Optional[DirLock] = None) -> RunDir:
     """Create the run directory ``path`` whole, holding its exclusive lock.
 
     It is built in a hidden directory beside ``path`` (spec copy, manifest, then ``initial(run)``,
     which writes the step-0 checkpoint) and renamed into place. ``path`` may be missing or an
     empty directory; a run there is replaced only with ``force`` (exchanged with the new one,
-    then removed), and anything else never (:func:`check_target`).
+    then removed), and anything else never (:func:`check_target`). ``held``: the exclusive lock
+    of ``path`` when the caller took it already (it is released once the new run is in place).
     """
     target = Path(path).expanduser().resolve()
     replace = check_target(target, force)
-    old: Optional[DirLock] = None
-    if target.is_dir():  # nobody may use it while it is replaced
+    old: Optional[DirLock] = held
+    if old is None and target.is_dir():  # nobody may use it while it is replaced
         old = lock_dir(target, exclusive=True, wait_hint="stop it first, or choose another --out")
     parent = target.parent
     with writing(parent):

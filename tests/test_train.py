@@ -169,10 +169,13 @@ def test_eval_bad_run_directories_get_one_line(tiny, trained, tmp_path, capsys):
         code, _, err = _cli(capsys, "eval", path, "--no-oracle")
         assert code == 1, name
         _one_line_error(err)
-    # a run whose model never got written (killed before its first validation)
+    # a run whose model never got written (killed before its first validation: the manifest has none)
     (trained / "model.zip").unlink()
+    manifest = json.loads((trained / "run.json").read_text())
+    manifest["model"] = None
+    (trained / "run.json").write_text(json.dumps(manifest))
     code, _, err = _cli(capsys, "eval", trained, "--no-oracle")
-    assert code == 1 and "no trained model" in err
+    assert code == 1 and "no trained model" in err and "--resume`" in err
     _one_line_error(err)
 
 

@@ -12,13 +12,28 @@ error (a bug of ours, reported in one line; ``ASAPC_DEBUG=1`` shows the trace), 
 
 from __future__ import annotations
 
-import argparse
 import os
+import signal
 import sys
-from typing import Optional, Sequence
+
+
+def _terminated_early(signum, frame) -> None:  # before main(): nothing exists yet, so nothing to save
+    os.write(2, b"interrupted\n")
+    os._exit(130)
+
+
+# As the program (`asapc`, `python -m asap_dsl.cli`), SIGTERM is handled from the first import on:
+# what follows takes a second to load, and a SIGTERM then must not end it silently (143).
+if sys.argv[:1] == ["-m"] or os.path.basename(sys.argv[0] if sys.argv else "") == "asapc":
+    for _sig, _default in ((signal.SIGTERM, signal.SIG_DFL), (signal.SIGINT, signal.default_int_handler)):
+        if signal.getsignal(_sig) is _default:
+            signal.signal(_sig, _terminated_early)
+
+import argparse  # noqa: E402
+from typing import Optional, Sequence  # noqa: E402
 
 from .. import __version__
-from ..diagnostics import SpecError
+from ..diagnostics import SpecError, printable
 from ..formatting import plural
 from ..limits import LIMITS, available_cores
 from .args import CliError, positive_int
@@ -72,7 +87,7 @@ def _exit_status(err: BaseException) -> int:
         print(plural(len(err.errors), "error"), file=sys.stderr)
         return 1
     if isinstance(err, CliError):
-        print(f"asapc: error: {err.message}", file=sys.stderr)
+        print(f"asapc: error: {printable(err.message)}", file=sys.stderr)  # paths may hold ESC bytes
         if err.code == 2:  # as argparse exits for a flag it rejects
             raise SystemExit(2)
         return err.code
@@ -94,19 +109,19 @@ def _terminated(signum, frame) -> None:
 
 def main(argv: Optional[Sequence[str]] = None) -> int:
     """Run ``asapc ARGV`` (``sys.argv[1:]`` by default) and return its exit status."""
-    import signal
     import threading
 
     main_thread = (threading.current_thread() is threading.main_thread()
-                   and signal.getsignal(signal.SIGTERM) is signal.SIG_DFL)
+                   and signal.getsignal(signal.SIGTERM) in (signal.SIG_DFL, _terminated_early))
     old = signal.signal(signal.SIGTERM, _terminated) if main_thread else None
+    if signal.getsignal(signal.SIGINT) is _terminated_early:  # from here on, Ctrl-C unwinds (files are closed)
+        signal.signal(signal.SIGINT, signal.default_int_handler)
     try:
         args = build_parser().parse_args(argv)
         _apply_limits(args)
-        try:
-            return int(args.func(args) or 0)
-        except (Exception, KeyboardInterrupt) as err:
-            return _exit_status(err)
+        return int(args.func(args) or 0)
+    except (Exception, KeyboardInterrupt) as err:
+        return _exit_status(err)
     finally:
         if main_thread:
             signal.signal(signal.SIGTERM, old)

@@ -16,11 +16,13 @@ per training run. Ray turns token authentication on by default: the head writes 
 
 from __future__ import annotations
 
+import contextlib
 import ipaddress
 import logging
 import os
 import re
 import socket
+import sys
 import threading
 from pathlib import Path
 from typing import Callable, Optional, Sequence
@@ -69,24 +71,34 @@ def _host_port(address: str) -> tuple[str, int]:
 
 def _use_token() -> None:
     """Present the cluster's token when one is at hand and the mode was not chosen: what
-    ``ray start`` does for the head, and Ray's driver does not do by itself."""
+    ``ray start`` does for the head, and Ray's driver does not do by itself. Ray reads the mode
+    when it loads; if it is loaded already, its configuration is read again."""
     if os.environ.get("RAY_AUTH_MODE"):
         return
     path = os.environ.get("RAY_AUTH_TOKEN_PATH") or str(Path.home() / ".ray" / "auth_token")
-    if os.environ.get("RAY_AUTH_TOKEN") or Path(path).is_file():
-        os.environ["RAY_AUTH_MODE"] = "token"
+    if not (os.environ.get("RAY_AUTH_TOKEN") or Path(path).is_file()):
+        return
+    os.environ["RAY_AUTH_MODE"] = "token"
+    if "ray" in sys.modules:
+        try:
+            from ray._raylet import Config
+
+            Config.initialize("")
+        except (ImportError, AttributeError):  # another version of Ray: it reads the environment itself
+            pass
 
 
 def connect(address: str, timeout: float = 30.0) -> bool:
     """Join the cluster at ``address`` (``ray.init``) within ``timeout`` seconds; True when this
     call connected (the caller then disconnects). :class:`ClusterError` in one sentence."""
+    address = parse_address(address)
+    _use_token()
     try:
         import ray
     except ImportError:
         raise ClusterError("--ray needs Ray: pip install 'asap-dsl[ray]'") from None
     if ray.is_initialized():
         return False
-    address = parse_address(address)
     if address not in ("auto", "local"):
         host, port = _host_port(address)
         try:  # Ray itself would retry for minutes, printing its log: a plain probe first
@@ -95,8 +107,6 @@ def connect(address: str, timeout: float = 30.0) -> bool:
             why = "no answer" if isinstance(err, socket.timeout) else (err.strerror or str(err) or type(err).__name__)
             raise ClusterError(f"cannot reach a Ray cluster at {address} within {timeout:g} s ({why}); is "
                                "`ray start --head` running there?") from None
-    _use_token()
-    os.environ.setdefault("RAY_BACKEND_LOG_LEVEL", "fatal")  # the driver's core logs its retries on stderr
     outcome: dict = {}
 
     def init() -> None:
@@ -106,19 +116,55 @@ def connect(address: str, timeout: float = 30.0) -> bool:
         except BaseException as err:  # noqa: BLE001 — told in a sentence below
             outcome["error"] = err
 
-    t = threading.Thread(target=init, name="ray-connect", daemon=True)
-    t.start()
-    t.join(timeout)
+    with _captured_stderr() as log:  # Ray's core logs each retry on stderr: kept, and read for the reason
+        t = threading.Thread(target=init, name="ray-connect", daemon=True)
+        t.start()
+        t.join(timeout)
+        log.keep = t.is_alive()  # still retrying: its log goes on into the file, not onto the user's screen
+    said = log.read()
+    if "InvalidAuthToken" in said or "Unauthenticated" in said:
+        raise ClusterError(f"the Ray cluster at {address} refused this driver's token: put the cluster's token in "
+                           "~/.ray/auth_token, RAY_AUTH_TOKEN or RAY_AUTH_TOKEN_PATH")
     if t.is_alive():
         raise ClusterError(f"the Ray cluster at {address} did not accept this driver within {timeout:g} s")
     err = outcome.get("error")
     if err is not None:
         text = str(err).strip().splitlines()[0] if str(err).strip() else type(err).__name__
-        if "auth" in text.lower() or "token" in text.lower():
-            text = ("it refused this driver's token: put the cluster's token in ~/.ray/auth_token, "
-                    "RAY_AUTH_TOKEN or RAY_AUTH_TOKEN_PATH")
         raise ClusterError(f"cannot join the Ray cluster at {address}: {text[:300]}")
     return True
+
+
+class _Log:
+    def __init__(self, f):
+        self.f, self.text, self.keep = f, "", False
+
+    def read(self) -> str:
+        if not self.f.closed:
+            self.f.seek(0)
+            self.text = self.f.read().decode("utf-8", "replace")
+        return self.text
+
+
+@contextlib.contextmanager
+def _captured_stderr():
+    """File descriptor 2 into a temporary file (Ray's C++ core writes there, not to sys.stderr)."""
+    import tempfile
+
+    f = tempfile.TemporaryFile()
+    sys.stderr.flush()
+    saved = os.dup(2)
+    os.dup2(f.fileno(), 2)
+    log = _Log(f)
+    try:
+        yield log
+    finally:
+        log.read()
+        if log.keep:  # fd 2 stays in the file; this process's own messages go to the real stderr
+            sys.stderr = os.fdopen(saved, "w", buffering=1)
+        else:
+            os.dup2(saved, 2)
+            os.close(saved)
+            f.close()
 
 
 def execute_ray(jobs: Sequence, runs_dir: str, address: str, tell: Callable, timeout: float = 30.0) -> list[dict]:

@@ -449,7 +449,8 @@ def _run(prog: Program, cfg: TrainConfig, run: RunDir, stop: Interrupts, *, resu
                 return _finished(run, cfg, session, evaluate)
             run.update_manifest(status="running", config=cfg.to_dict(), error=None)
     else:
-        check_target(run.path, force)  # refused before anything is built
+        if check_target(run.path, force) or run.path.is_dir():  # refused before anything is built
+            run.acquire(exclusive=True)  # the run it replaces (or the empty directory) is ours until then
         session = _Session(prog, cfg, run, progress, callbacks, stop)
         model = session.engine.build(cfg.algo, session.env, cfg.hyper, cfg.seed, tensorboard_log=str(run.tensorboard_dir))
         if stop.requested:  # nothing was created yet
@@ -459,7 +460,7 @@ def _run(prog: Program, cfg: TrainConfig, run: RunDir, stop: Interrupts, *, resu
                     "config": cfg.to_dict(), "versions": package_versions(), "status": "running", "steps_done": 0,
                     "seconds": 0.0, "created": stamp()}
         # Created whole, with a checkpoint at step 0: a run directory that exists can be resumed.
-        created = create_run(run.path, manifest, prog.source, force=force, interrupts=stop,
+        created = create_run(run.path, manifest, prog.source, force=force, interrupts=stop, held=run.lock,
                              initial=lambda staged: session.checkpoint(model, staged))
         run.lock, run.interrupts = created.lock, stop  # the caller releases it
     try:
