@@ -43,11 +43,12 @@ from contextlib import contextmanager, nullcontext
 from pathlib import Path
 from typing import Any, Callable, Iterator, Mapping, Optional, Union
 
+from .runschema import FORMAT_VERSION, STATUSES, check_manifest, evaluation_problem, read_curves
 from .runfiles import (_UMASK, LOCK_FILE, DirLock, RunBusy, RunError, RunWriteError, _reason, atomic_path,
                        atomic_write, command_line, exchange, file_record, fsync_dir, is_write_error, lock_dir,
                        record_mismatch, remove_tree, shell_quote, shown, writing)
 
-__all__ = ["Checkpoint", "RunBusy", "RunDir", "RunError", "RunWriteError", "atomic_path", "atomic_write",
+__all__ = ["FORMAT_VERSION", "STATUSES", "Checkpoint", "RunBusy", "RunDir", "RunError", "RunWriteError", "atomic_path", "atomic_write",
            "atomic_write_json", "check_target", "checkpoint_seconds", "command_line", "create_run", "default_run_name", "json_safe",
            "package_versions", "read_json", "shell_quote", "spec_hash"]
 
@@ -58,8 +59,6 @@ CHECKPOINT = "checkpoint"
 CURVES = "curves.csv"
 EVAL = "eval.json"
 TENSORBOARD = "tb"
-FORMAT_VERSION = 2
-STATUSES = ("running", "interrupted", "finished", "failed")
 
 PathLike = Union[str, os.PathLike]
 Writer = Callable[[Path], None]
@@ -68,7 +67,6 @@ _FILES = (MANIFEST, SPEC_COPY, MODEL, CURVES, EVAL)
 # The names a run directory may hold: its files, their temporaries, checkpoint stages, the lock.
 _RUN_ENTRY = re.compile(r"^(?:%s|%s|%s|\.lock|checkpoint\.(?:new|old)|\.(?:%s)\..+\.tmp(?:\.\w+)?)$" % (
     "|".join(map(re.escape, _FILES)), CHECKPOINT, TENSORBOARD, "|".join(map(re.escape, _FILES))))
-_HEX64 = re.compile(r"^[0-9a-f]{64}$")
 
 
 def checkpoint_seconds() -> float:
@@ -143,68 +141,6 @@ def read_json(path: PathLike, what: str) -> Any:
 def _short(err: BaseException) -> str:
     text = str(err).strip().splitlines()
     return text[0] if text else type(err).__name__
-
-
-# ---------------------------------------------------------------------------------------- schema
-def _is_int(x: Any) -> bool:
-    return isinstance(x, int) and not isinstance(x, bool)
-
-
-def _is_record(x: Any) -> bool:
-    return (isinstance(x, dict) and _is_int(x.get("size")) and x["size"] >= 0
-            and isinstance(x.get("sha256"), str) and bool(_HEX64.match(x["sha256"])))
-
-
-_FIELDS: dict[str, tuple[Callable[[Any], bool], str]] = {
-    "spec_file": (lambda v: isinstance(v, str) and os.path.isabs(v), "an absolute path"),
-    "spec_hash": (lambda v: isinstance(v, str) and bool(_HEX64.match(v)), "a sha256"),
-    "task": (lambda v: isinstance(v, str) and v != "", "a name"),
-    "config": (lambda v: isinstance(v, dict), "an object"),
-    "versions": (lambda v: isinstance(v, dict), "an object"),
-    "status": (lambda v: v in STATUSES, " or ".join(STATUSES)),
-    "steps_done": (lambda v: _is_int(v) and v >= 0, "a whole number"),
-    "seconds": (lambda v: isinstance(v, (int, float)) and not isinstance(v, bool) and v >= 0, "a number"),
-    "created": (lambda v: isinstance(v, str), "a date"),
-}
-_OPTIONAL: dict[str, tuple[Callable[[Any], bool], str]] = {
-    "best": (lambda v: v is None or isinstance(v, dict), "an object"),
-    "model": (lambda v: v is None or _is_record(v), "a file record (size, sha256)"),
-    "checkpoint": (lambda v: v is None or (isinstance(v, dict) and _is_int(v.get("steps")) and v["steps"] >= 0
-                                           and isinstance(v.get("files"), dict) and bool(v["files"])
-                                           and all(isinstance(k, str) and re.match(r"^[\w.-]+$", k) and k not in (".", "..")
-                                                   and _is_record(r) for k, r in v["files"].items())),
-                   "a checkpoint record"),
-    "error": (lambda v: v is None or isinstance(v, str), "a sentence"),
-}
-
-
-def check_manifest(data: Any, where: PathLike) -> dict:
-    """``data`` if it is a manifest of this version, else :class:`RunError` naming what is wrong."""
-    def damaged(what: str) -> RunError:
-        return RunError(f"{shown(where)}: damaged manifest ({what}); replace the run with `asapc train ... --force`")
-
-    if not isinstance(data, dict):
-        raise damaged("not a JSON object")
-    fmt = data.get("format")
-    if fmt != FORMAT_VERSION:
-        if _is_int(fmt) and 0 < fmt < FORMAT_VERSION:
-            raise RunError(f"{shown(where)}: written by an older asap-dsl (run format {fmt}); "
-                           "train it again with `asapc train ... --force`")
-        raise damaged(f"format {fmt!r}, expected {FORMAT_VERSION}")
-    for table, required in ((_FIELDS, True), (_OPTIONAL, False)):
-        for key, (ok, kind) in table.items():
-            if key not in data:
-                if required:
-                    raise damaged(f"no '{key}'")
-                continue
-            if not ok(data[key]):
-                raise damaged(f"'{key}' is {_preview(data[key])}, expected {kind}")
-    return data
-
-
-def _preview(value: Any) -> str:
-    text = json.dumps(value, default=str)
-    return shown(text if len(text) <= 40 else text[:37] + "...")
 
 
 # ---------------------------------------------------------------------------------------- runs
@@ -463,26 +399,10 @@ class RunDir:
         """``eval.json``, checked: its shape, and that it evaluated this run's spec and model."""
         manifest = manifest if manifest is not None else self.read_manifest()
         data = read_json(self.eval_path, "evaluation")
-
-        def bad(what: str) -> RunError:
-            return RunError(f"{shown(self.eval_path)}: {what}; evaluate the run again with "
-                            f"`{command_line(['asapc', 'eval', str(self.path)])}`")
-
-        if not isinstance(data, dict):
-            raise bad("not an evaluation")
-        rows, per_state, episodes = data.get("rows"), data.get("per_state"), data.get("episodes")
-        if not (_is_int(episodes) and episodes > 0 and isinstance(rows, list) and rows and all(
-                isinstance(r, dict) and _is_int(r.get("tolerance")) and _is_int(r.get("count"))
-                and isinstance(r.get("rate"), (int, float)) and isinstance(r.get("ci95"), list) for r in rows)):
-            raise bad("damaged (its rows or episode count are not an evaluation's)")
-        if not (isinstance(per_state, dict) and isinstance(per_state.get("t_reach"), list)
-                and len(per_state["t_reach"]) == episodes):
-            raise bad("damaged (its per-state results are missing or cut)")
-        if data.get("spec_hash") != manifest["spec_hash"]:
-            raise bad("it evaluated another spec than the run's")
-        model = manifest.get("model")
-        if model is None or data.get("model_sha256") != model["sha256"]:
-            raise bad("it evaluated another model than the run's best")
+        why = evaluation_problem(data, manifest)
+        if why is not None:
+            raise RunError(f"{shown(self.eval_path)}: {why}; evaluate the run again with "
+                           f"`{command_line(['asapc', 'eval', str(self.path)])}`")
         return data
 
     def write_curves(self, text: str) -> None:
@@ -490,25 +410,7 @@ class RunDir:
 
     def read_curves(self) -> list[dict]:
         """``curves.csv`` as rows of numbers by column ([] when the run has none yet)."""
-        import csv
-
-        if not self.curves_path.exists():
-            return []
-        try:
-            with open(self.curves_path, newline="", encoding="utf-8") as f:
-                rows = list(csv.DictReader(f))
-        except (OSError, UnicodeDecodeError, csv.Error) as err:
-            raise RunError(f"{shown(self.curves_path)}: unreadable training curves ({_short(err)})") from None
-        out = []
-        for i, row in enumerate(rows, 2):
-            try:
-                values = {k: float(v) for k, v in row.items()}
-            except (TypeError, ValueError):
-                raise RunError(f"{shown(self.curves_path)}: line {i} is not a row of numbers (damaged)") from None
-            if "steps" not in values or not all(math.isfinite(v) for v in values.values()):
-                raise RunError(f"{shown(self.curves_path)}: line {i} is not a row of curves (damaged)")
-            out.append(values)
-        return out
+        return read_curves(self.curves_path)
 
     # -- failures
     @contextmanager

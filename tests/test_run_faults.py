@@ -8,7 +8,6 @@ behind after a kill (a worker that outlived its parent) is found by scanning /pr
 
 from __future__ import annotations
 
-import json
 import os
 import random
 import shutil

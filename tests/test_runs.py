@@ -50,7 +50,7 @@ def base(tmp_path_factory):
     with pytest.MonkeyPatch.context() as mp:
         mp.setenv("ASAP_CACHE_DIR", str(d / "cache"))
         mp.setenv("ASAP_ENGINE", os.environ.get("ASAP_ENGINE") or "numpy")  # as conftest's: no compile
-        asap_dsl.train(spec, steps=200, n_envs=2, out=d / "run", settings=FAST, eval_episodes=20)
+        asap_dsl.train(spec, steps=200, n_envs=2, out=d / "run", settings=FAST, eval_episodes=20, engine="sb3")
     return spec, d / "run"
 
 
@@ -90,7 +90,8 @@ def test_force_replaces_only_a_run(base, run, tmp_path, capsys):
     assert "--force`" not in line  # it says how to go on, not to destroy
 
     before = RunDir(run).read_manifest()
-    code, _, err = _cli(capsys, "train", spec, "--out", run, "--force", "--steps", 100, "--quiet", "--no-eval")
+    code, _, err = _cli(capsys, "train", spec, "--out", run, "--force", "--steps", 100, "--quiet", "--no-eval",
+                        "--engine", "sb3")
     assert code == 0, err
     after = RunDir(run).read_manifest()
     assert after["config"]["steps"] == 100 and before["config"]["steps"] == 200
@@ -201,7 +202,7 @@ def test_a_failed_checkpoint_write_keeps_the_last_one(base, tmp_path, monkeypatc
     monkeypatch.setattr(training, "_rng_state", failing)
     out = tmp_path / "run"
     with pytest.raises(RunError) as info:
-        asap_dsl.train(spec, steps=150, n_envs=2, out=out, settings=FAST, evaluate=False)
+        asap_dsl.train(spec, steps=150, n_envs=2, out=out, settings=FAST, evaluate=False, engine="sb3")
     text = str(info.value)
     assert "cannot write" in text and "state.pkl: input/output error" in text and "the checkpoint at step 0 is intact" in text
     assert "--resume`" in text and "\n" not in text
@@ -254,7 +255,7 @@ def test_paths_are_stored_absolute_and_messages_escaped(base, tmp_path, capsys, 
     (work / "rail.asap").write_text(RAIL)
     monkeypatch.chdir(work)
     out = tmp_path / "odd\x1bname"
-    asap_dsl.train("rail.asap", steps=100, n_envs=2, out=out, settings=FAST, evaluate=False)
+    asap_dsl.train("rail.asap", steps=100, n_envs=2, out=out, settings=FAST, evaluate=False, engine="sb3")
     m = RunDir(out).read_manifest()
     assert m["spec_file"] == str(work / "rail.asap")
     code, _, err = _cli(capsys, "train", "rail.asap", "--out", out, "--steps", 100, "--quiet")

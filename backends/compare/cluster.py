@@ -25,7 +25,7 @@ import socket
 import sys
 import threading
 from pathlib import Path
-from typing import Callable, Optional, Sequence
+from typing import Callable, Sequence
 
 __all__ = ["ClusterError", "connect", "execute_ray", "parse_address"]
 
@@ -175,7 +175,7 @@ def execute_ray(jobs: Sequence, runs_dir: str, address: str, tell: Callable, tim
 
     from asap_dsl.processes import Interrupts
 
-    from .sweep import JobResult, SweepInterrupted, run_job
+    from .sweep import SweepInterrupted, run_job
 
     connected = connect(address, timeout)
     try:
@@ -192,14 +192,14 @@ def execute_ray(jobs: Sequence, runs_dir: str, address: str, tell: Callable, tim
                 ready, pending = ray.wait(pending, num_returns=1, timeout=0.5)
                 for ref in ready:
                     i, job = futures[ref]
-                    results[i] = _result(ray, ref, job, JobResult)
+                    results[i] = _result(ray, ref, job)
                     tell("done", job, results[i])
             if stop.requested:
                 for ref in pending:
                     ray.cancel(ref)
                 for ref in pending:
                     i, job = futures[ref]
-                    results[i] = _result(ray, ref, job, JobResult, interrupted=True)
+                    results[i] = _result(ray, ref, job, stopped=True)
                 raise SweepInterrupted([results[i] for i in sorted(results)])
         return [results[i] for i in sorted(results)]
     finally:
@@ -207,11 +207,15 @@ def execute_ray(jobs: Sequence, runs_dir: str, address: str, tell: Callable, tim
             ray.shutdown()
 
 
-def _result(ray, ref, job, JobResult, interrupted: bool = False) -> dict:
+def _result(ray, ref, job, stopped: bool = False) -> dict:
+    """A task's result; a task that failed for good is a failed run (the sweep goes on), and one
+    cancelled by a stop that does not answer within two minutes an interrupted one."""
+    from .sweep import JobResult
+
     try:
-        return ray.get(ref, timeout=120 if interrupted else None)
-    except Exception as err:  # noqa: BLE001 — a task that failed for good: reported, the sweep goes on
-        if interrupted:
+        return ray.get(ref, timeout=120 if stopped else None)
+    except Exception as err:  # noqa: BLE001 — told in the result
+        if stopped:
             return JobResult(job, "", "interrupted").to_dict()
         text = str(err).strip().splitlines()[0] if str(err).strip() else type(err).__name__
         return JobResult(job, "", "failed", error=f"the Ray task failed after {RETRIES} retries ({type(err).__name__}: "

@@ -152,8 +152,9 @@ def _md_table(header: list[str], rows: list[list[str]]) -> str:
 
 def _bounds(columns: list[Column]) -> str:
     parts = []
+    missing = "no ceiling (an unsupported task, or a black box without `asapc oracle`'s planner (achievable))"
     for c in columns:
-        parts.append(f"{c.name}: {c.bound or 'no ceiling (an unsupported task, or a black box without `asapc oracle`'s planner (achievable))'}")
+        parts.append(f"{c.name}: {c.bound or missing}")
     return "; ".join(parts)
 
 

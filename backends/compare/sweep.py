@@ -237,11 +237,13 @@ def _distinct(jobs: Sequence[Job], runs_dir: str) -> tuple[list[Job], list[int]]
 
 
 def _spread(done: list[dict], unique: list[Job], jobs: Sequence[Job], index: list[int]) -> list[dict]:
-    """The results of the distinct jobs, one per job again (in job order)."""
-    by_job = {r["job"]["spec"] + "\0" + json.dumps(r["job"], sort_keys=True): r for r in done}
+    """The results of the distinct jobs, one per job again (in job order; a job whose run had no
+    result yet, when the sweep was stopped, has none)."""
+    key = lambda d: json.dumps(d, sort_keys=True)  # noqa: E731
+    by_job = {key(r["job"]): r for r in done}
     out = []
     for job, k in zip(jobs, index):
-        r = by_job.get(unique[k].spec + "\0" + json.dumps(asdict(unique[k]), sort_keys=True))
+        r = by_job.get(key(asdict(unique[k])))
         if r is not None:
             out.append({**r, "job": asdict(job)})
     return out
