@@ -28,7 +28,8 @@ def commands() -> list[list[str]]:
         out.append(["lint", "--format", "json", f])
         out.append(["show", "--format", "json", f])
         out.append(["show", f])
-        out.append(["oracle", "--format", "json", "--episodes", "4", "--workers", "1", f])
+        if "swimmer" not in f:  # a black box: `asapc oracle` plans through it (issue 17), by design no longer "none"
+            out.append(["oracle", "--format", "json", "--episodes", "4", "--workers", "1", f])
     return out
 
 

@@ -156,7 +156,8 @@ def oracle_command(args: argparse.Namespace, out: Optional[TextIO] = None, err: 
     import asap_dsl
     from asap_dsl.backends.oracle.cache import store
     from asap_dsl.backends.oracle.planner import PlannerBudget, PlannerUnsupported
-    from asap_dsl.backends.oracle.planning import plan_states, tighten_planned
+    from asap_dsl.backends.oracle.planning import plan_states, shortest_sequences, tighten_planned
+    from asap_dsl.stl import ir
     from asap_dsl.backends.oracle.solver import OracleUnsupported, run, tighten
 
     out = out or sys.stdout
@@ -174,9 +175,12 @@ def oracle_command(args: argparse.Namespace, out: Optional[TextIO] = None, err: 
         progress = _Progress(err, t, args.episodes, "planner" if planned else "oracle")
         try:
             if planned:  # a black box, or --planner: an achievable bound through the simulator
-                rep = plan_states(prog, t, episodes=args.episodes, seed=args.seed, workers=n_workers,
-                                  budget=PlannerBudget(samples=args.samples, iterations=args.iterations),
-                                  time_limit=args.state_time_limit, progress=progress)
+                budget = PlannerBudget(samples=args.samples, iterations=args.iterations)
+                asap = ir.to_text(prog.task(t).model.asap)  # the tasks before with this `asap` hand over their plans
+                warm = [w for r in reports if ir.to_text(prog.task(r.task).model.asap) == asap
+                        for w in shortest_sequences(r.results, budget.exchange)]
+                rep = plan_states(prog, t, episodes=args.episodes, seed=args.seed, workers=n_workers, budget=budget,
+                                  time_limit=args.state_time_limit, progress=progress, warm=warm)
             else:
                 rep = run(prog, t, episodes=args.episodes, seed=args.seed, workers=n_workers,
                           time_limit=args.state_time_limit, progress=progress)

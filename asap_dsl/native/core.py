@@ -119,7 +119,7 @@ class NativeCore:
         self.info_sat = np.zeros(B, dtype=bool)
         self._obs_shape, self._act_shape = (B, c.n_obs), (B, self.m)
         self._all = np.ones(B, dtype=bool)
-        self.final_states = None
+        self._finished = 0
         self.rng = inner.rng  # the generator's addresses into row B
         if inner.avoid is not None:  # fresh episodes of start() too are checked compiled
             inner.avoid_at_start = self.avoid_at_start
@@ -134,6 +134,13 @@ class NativeCore:
         self.inner.rng = value
         c = self.cols
         self.I[self.B, [c.rs, c.rd, c.ru]] = draws.pointers(value)
+
+    @property
+    def final_states(self) -> Optional[np.ndarray]:
+        """The true states that ended the episodes of the last autoreset (one row per entry)."""
+        if not self._finished:
+            return None
+        return self.F[:self._finished, self.cols.final: self.cols.final + self.n].copy()
 
     def _finite_rho(self, rho: np.ndarray) -> np.ndarray:
         return self.inner._finite_rho(rho)
@@ -212,12 +219,11 @@ class NativeCore:
 
                 raise ValueError(INIT_BOX_IN_AVOID)
             if self.autoreset:
-                c, done = self.cols, flags[2]
-                rows = self.F[:self.B][done]
-                final_obs = rows[:, c.final_obs: c.final_obs + c.n_obs].astype(np.float32)
-                self.final_states = rows[:, c.final: c.final + self.n]
+                c = self.cols
+                final_obs = self.F[:ndone, c.final_obs: c.final_obs + c.n_obs].astype(np.float32)
+                self._finished = ndone
                 if self._black_box:
-                    self._autoreset(done, flags[3], obs)
+                    self._autoreset(flags[2], flags[3], obs)
         return obs, rew, flags, final_obs
 
     def step(self, actions):

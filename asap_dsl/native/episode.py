@@ -72,8 +72,8 @@ class Cols:
     arob: int = 0       # F: asap's live robustness (after a restart: of the initial state)
     rew: int = 0        # F: the last step's reward and info rho
     rho: int = 0
-    final: int = 0      # F: the state that ended the episode, then its observation
-    final_obs: int = 0
+    final: int = 0      # F: the states that ended episodes and their observations, in rows 0, 1, ...
+    final_obs: int = 0  # (the finished entries in order; rewritten each step)
     cand: int = 0       # F: the fresh episode's initial state
     t: int = 0          # I: step, episode length, t_reach (-1: not yet), end code
     k: int = 0
@@ -193,11 +193,10 @@ def finish_lines(spec: StepSpec, c: Cols) -> list[str]:
           f"I[b, {c.info_t_reach}] = tr", f"I[b, {c.info_end}] = end", f"I[b, {c.info_t}] = t",
           "flags[0, b] = failed", "flags[1, b] = trunc", "flags[2, b] = done", "flags[3, b] = late",
           "flags[4, b] = sat",
-          "if done:",
-          "    ndone += 1"]
-    L += [f"    F[b, {c.final + i}] = X[{i}]" for i in range(n)]
-    L += [f"    F[b, {c.final_obs + i}] = obs[b, {i}]" for i in range(c.n_obs)]
-    return L
+          "if done:"]  # the terminal state and observation, packed: the j-th finished entry's in row j
+    L += [f"    F[ndone, {c.final + i}] = X[{i}]" for i in range(n)]
+    L += [f"    F[ndone, {c.final_obs + i}] = obs[b, {i}]" for i in range(c.n_obs)]
+    return L + ["    ndone += 1"]
 
 
 def start_lines(spec: StepSpec, c: Cols, X: str, k: str) -> list[str]:

@@ -71,9 +71,9 @@ class PlannerBudget:
     """
 
     samples: int = 128
-    iterations: int = 30
+    iterations: int = 60
     hold: int = 1
-    method: str = "cem"
+    method: str = "ps"
     elite: float = 0.1
     smoothing: float = 0.2
     sigma: float = 0.5
@@ -83,6 +83,7 @@ class PlannerBudget:
     islands: int = 8
     exchange: int = 16
     refine_sigma: float = 0.3
+    floor: float = 0.02
 
     def __post_init__(self):
         if self.method not in METHODS:
@@ -261,6 +262,42 @@ class Planner:
                        source="another state", rollouts=base.rollouts + len(pool),
                        seconds=base.seconds + time.perf_counter() - start)
 
+    def descend(self, x0: np.ndarray, z0: np.ndarray, iterations: int = 60) -> tuple[float, Optional[np.ndarray], int]:
+        """A local search from the knots ``z0``: L-BFGS-B on the terminal cost, its gradient from
+        central differences of all knots at once (one batch of ``2 knots m + 1`` rollouts). For
+        the pilot, when sampling around "do nothing" finds no way (moving first takes the
+        swimmer away from its goal). Returns ``(steps, knots, rollouts)`` of the first candidate
+        that reached (``inf, None`` if none)."""
+        import scipy.optimize
+
+        D = self.knots * self.m
+        if 2 * D + 1 > self.K:
+            return math.inf, None, 0
+        eps = 1e-3
+        found: list = [math.inf, None]
+        used = [0]
+        basis = np.eye(D)
+
+        def f_and_g(flat: np.ndarray):
+            zs = np.concatenate([flat[None], flat[None] + eps * basis, flat[None] - eps * basis]).reshape(-1, self.knots,
+                                                                                                          self.m)
+            t_reach, cost = self.evaluate(x0, zs, self.deadline, terminal=True)
+            used[0] += len(zs)
+            k = int(np.argmin(t_reach))
+            if t_reach[k] < found[0]:
+                found[0], found[1] = float(t_reach[k]), zs[k].copy()
+            g = (cost[1: D + 1] - cost[D + 1:]) / (2 * eps)
+            if found[1] is not None:
+                raise StopIteration
+            return float(cost[0]), g
+
+        try:
+            scipy.optimize.minimize(f_and_g, np.clip(np.asarray(z0, float).ravel(), -1, 1), jac=True, method="L-BFGS-B",
+                                    bounds=[(-1.0, 1.0)] * D, options={"maxiter": int(iterations)})
+        except StopIteration:
+            pass
+        return found[0], found[1], used[0]
+
     def cost(self, t_reach: np.ndarray, rho: np.ndarray, failed: np.ndarray, terminal: bool) -> np.ndarray:
         """A candidate's cost (module docstring): its first hitting step where it reaches, else
         the steps plus ``W`` times how far ``asap`` is from holding (relative to the initial
@@ -383,7 +420,7 @@ class Planner:
                 else:  # predictive sampling: the best is the nominal
                     new_mu, new_sigma = z[order[0]], sigma[r]
                 mu[r] = b.smoothing * mu[r] + (1 - b.smoothing) * new_mu
-                sigma[r] = np.maximum(b.smoothing * sigma[r] + (1 - b.smoothing) * new_sigma, 0.02)
+                sigma[r] = np.maximum(b.smoothing * sigma[r] + (1 - b.smoothing) * new_sigma, b.floor)
                 kept.append(elite[: max(1, int(round(b.keep * n_elite)))])
             kept = np.concatenate(kept)
             if best_z is not None:

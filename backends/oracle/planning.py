@@ -40,7 +40,7 @@ from .planner import BOUND, LABEL, PlannedState, Planner, PlannerBudget, Sequenc
 from .results import OracleReport
 from .search import STATE_TIME_LIMIT
 
-__all__ = ["plan_states", "replay_counted", "tighten_planned"]
+__all__ = ["plan_states", "replay_counted", "shortest_sequences", "tighten_planned"]
 
 
 def _pad(actions: Sequence[Optional[np.ndarray]], steps: int, m: int) -> np.ndarray:
@@ -134,8 +134,8 @@ def _map(payloads: list, workers: int, progress: Optional[Callable[[int], None]]
 
 def plan_states(prog, task: Optional[str] = None, episodes: int = 1000, seed: int = EVAL_SEED, workers: int = 1,
                 states: Optional[np.ndarray] = None, budget: Optional[PlannerBudget] = None,
-                time_limit: float = STATE_TIME_LIMIT,
-                progress: Optional[Callable[[int], None]] = None) -> OracleReport:
+                time_limit: float = STATE_TIME_LIMIT, progress: Optional[Callable[[int], None]] = None,
+                warm: Sequence[np.ndarray] = ()) -> OracleReport:
     """The planner's achievable steps from each of ``episodes`` seeded initial states (or the
     given ``states``) of one task (module docstring).
 
@@ -148,6 +148,9 @@ def plan_states(prog, task: Optional[str] = None, episodes: int = 1000, seed: in
     :param budget: samples, iterations and the search's settings (:class:`PlannerBudget`).
     :param time_limit: seconds of search per state (the pilot: ``pilot`` times as many).
     :param progress: called as ``progress(k)`` when k more states are planned.
+    :param warm: action sequences every state (and the pilot) tries first: another task's
+        (``asapc oracle`` passes each task the shortest sequences of the tasks before it that
+        share its ``asap``).
     :return: a report labelled ``achievable`` (``extra``: ``bound``, ``planner`` with the budget,
         the pilot and the exchange).
     :raises PlannerUnsupported: a simulator that cannot be started from a given state.
@@ -164,15 +167,16 @@ def plan_states(prog, task: Optional[str] = None, episodes: int = 1000, seed: in
         used_seed = None
     states = np.asarray(states, float).reshape(-1, planner.n)
     workers = max(1, min(int(workers), len(states)))
-    pilot = _pilot(prog, planner, budget, time_limit, seed)
-    warm = [pilot.actions] if pilot.steps is not None and pilot.actions is not None and len(pilot.actions) else []
+    pilot = _pilot(prog, planner, budget, time_limit, seed, warm)
+    warm = ([pilot.actions] if pilot.steps is not None and pilot.actions is not None and len(pilot.actions) else []) \
+        + [np.asarray(w, float) for w in warm]
     n_chunks = min(len(states), 8 * workers) if workers > 1 else 1
     chunks = [c for c in np.array_split(np.arange(len(states)), n_chunks) if len(c)]
     common = (prog.source, prog.file, planner.task_name, budget, time_limit, seed)
     planned = _map([common + (states[c], [int(i) for i in c], warm, None, None) for c in chunks], workers, progress)
     by_index = {r.index: r for r in planned}
     results = [by_index[i] for i in range(len(states))]
-    pool = _pool(results, budget.exchange)
+    pool = shortest_sequences(results, budget.exchange)
     exchanged = 0
     if pool:
         own = [r.to_dict(with_actions=True) for r in results]
@@ -193,7 +197,8 @@ def plan_states(prog, task: Optional[str] = None, episodes: int = 1000, seed: in
                         used_seed, results, time.perf_counter() - start, workers, extra)
 
 
-def _pilot(prog, planner: Planner, budget: PlannerBudget, time_limit: float, seed: int) -> PlannedState:
+def _pilot(prog, planner: Planner, budget: PlannerBudget, time_limit: float, seed: int,
+           warm: Sequence[np.ndarray] = ()) -> PlannedState:
     """The centre of the task's initial box, planned with the pilot's larger budget."""
     from asap_dsl.sampling import init_box
 
@@ -203,11 +208,29 @@ def _pilot(prog, planner: Planner, budget: PlannerBudget, time_limit: float, see
         return PlannedState(-1, centre, None, "not_found", False)
     coarse = replace(budget, hold=max(budget.hold, budget.pilot_hold))
     pilot = Planner(prog, planner.task_name, coarse, time_limit * budget.pilot, seed)
-    return pilot.plan(centre, -1, iterations=budget.iterations * budget.pilot, islands=budget.islands)
+    start = time.perf_counter()
+    r = pilot.plan(centre, -1, warm=warm, iterations=budget.iterations * budget.pilot)
+    if r.steps is not None:
+        return r
+    # nothing around "do nothing": local searches from random sequences until one reaches
+    rng = np.random.default_rng([seed, 17])
+    spent = r.rollouts
+    for _ in range(budget.islands):
+        if time.perf_counter() - start > time_limit * budget.pilot:
+            break
+        t, z, used = pilot.descend(centre, rng.uniform(-1, 1, (pilot.knots, pilot.m)))
+        spent += used
+        if z is not None:
+            r = pilot.plan(centre, -1, warm=[pilot.actions(z[None])[0, : int(t)]],
+                           iterations=budget.iterations * budget.pilot)
+            spent += r.rollouts
+            break
+    return replace(r, rollouts=spent, seconds=time.perf_counter() - start)
 
 
-def _pool(results: Sequence[PlannedState], size: int) -> list[np.ndarray]:
-    """The ``size`` shortest sequences found (one per state; ties by index)."""
+def shortest_sequences(results: Sequence[PlannedState], size: int) -> list[np.ndarray]:
+    """The ``size`` shortest sequences found (one per state; ties by index): the exchange, and the
+    warm starts one task hands the next."""
     found = sorted((r for r in results if r.steps is not None and r.actions is not None and r.steps > 0),
                    key=lambda r: (r.steps, r.index))
     return [np.asarray(r.actions, float) for r in found[:size]]
