@@ -19,7 +19,8 @@ from .diagnostics import Span
 START_SYMBOLS = ("start", "reward")
 
 
-def _grammar_text() -> str:
+def grammar_text() -> str:
+    """The grammar's text."""
     # Installed: the grammar ships inside the package. From a source checkout: grammar/asap.lark.
     try:
         return resources.files("asap_dsl").joinpath("grammar/asap.lark").read_text(encoding="utf-8")
@@ -51,7 +52,7 @@ def get_parser() -> lark.Lark:
     """The parser (built on the first call; later calls return it)."""
     # cache=True keeps the built LALR tables on disk, keyed by the grammar and the options: a cold
     # `asapc lint` then loads them instead of rebuilding them.
-    return lark.Lark(_grammar_text(), parser="lalr", propagate_positions=True, maybe_placeholders=True,
+    return lark.Lark(grammar_text(), parser="lalr", propagate_positions=True, maybe_placeholders=True,
                      lexer_callbacks={"NAME": _reserve_keywords}, cache=True, start=list(START_SYMBOLS))
 
 
