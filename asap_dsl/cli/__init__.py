@@ -91,6 +91,11 @@ def _exit_status(err: BaseException) -> int:
         if err.code == 2:  # as argparse exits for a flag it rejects
             raise SystemExit(2)
         return err.code
+    from ..sim import SimulatorError  # loaded by then if a simulator ran
+
+    if isinstance(err, SimulatorError):  # the user's simulator code failed; the sentence names the spec line
+        print(f"asapc: error: {printable(str(err))}", file=sys.stderr)
+        return 1
     if isinstance(err, KeyboardInterrupt):
         print("interrupted", file=sys.stderr)
         return 130
