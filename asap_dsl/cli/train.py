@@ -16,7 +16,8 @@ from typing import Optional, TextIO
 
 from ..formatting import percent
 from ..runfiles import shown
-from .args import InputError, UsageError, add_seed, add_task, check_task, positive_amount, positive_int, steps_int
+from .args import (InputError, UsageError, add_seed, add_task, check_task, natural_int, positive_amount, positive_int,
+                   steps_int)
 
 __all__ = ["ConsoleProgress", "fill_train_subparser", "train_command", "validation_text"]
 
@@ -40,6 +41,9 @@ def fill_train_subparser(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--envs", type=positive_int, dest="n_envs", help="environments stepped together (default: the preset's)")
     p.add_argument("--engine", choices=ENGINES, help="what trains: sbx (JAX) or sb3 (stable-baselines3 on torch; "
                    "default: the preset's engine where it has the algorithm)")
+    p.add_argument("--demonstrations", type=natural_int, metavar="N",
+                   help="initial states whose oracle action sequences go into the replay buffer before learning "
+                        "(SAC, TD3, DDPG on known dynamics; default: the preset's; 0: none)")
     p.add_argument("--out", help="the run directory (default runs/<spec>-<task>-<algo>-<reward>-s<seed>)")
     p.add_argument("--resume", action="store_true", help="continue the run's checkpoint (same steps, buffer, random state)")
     p.add_argument("--force", action="store_true", help="replace an existing run directory")
@@ -100,6 +104,10 @@ class ConsoleProgress:
             rate = f"{(done - self.first) / el:,.0f} steps/s" if el > 0 else ""
             self.bar.update(self.task_id, completed=done, rate=rate)
 
+    def note(self, line: str) -> None:
+        """A line before training starts (the demonstrations)."""
+        print(line, file=self.stream, flush=True)
+
     def validated(self, row: dict) -> None:
         text = f"validation at {row['steps']:,} steps: {validation_text(row, self.ceiling)}" + ("  [best]" if row["best"] else "")
         if self.bar is not None:
@@ -143,7 +151,7 @@ def train_command(args: argparse.Namespace, out: Optional[TextIO] = None, err: O
                        preset=args.preset, out=args.out, resume=args.resume, force=args.force,
                        progress=progress, evaluate=not args.no_eval,
                        time_limit=None if args.time_limit is None else 60.0 * args.time_limit,
-                       **_engine_options(args))
+                       demonstrations=args.demonstrations, **_engine_options(args))
     except KeyError as e:  # an unknown task
         raise UsageError(e.args[0]) from None
     except ConfigError as e:

@@ -61,6 +61,7 @@ class TrainConfig:
     eval_episodes: int
     hyper: dict[str, Any] = field(default_factory=dict)
     time_limit: Optional[float] = None  # seconds of training; the run ends (finished) when they are spent
+    demonstrations: int = 0   # initial states whose oracle sequences fill the replay buffer first (:mod:`.demonstrations`)
 
     def to_dict(self) -> dict:
         return asdict(self)
@@ -69,7 +70,7 @@ class TrainConfig:
     def from_dict(cls, data: Mapping[str, Any]) -> "TrainConfig":
         names = {f.name for f in fields(cls)}
         data = {"engine": REFERENCE, **data}  # a run from before engines: stable-baselines3 trained it
-        missing = names - set(data) - {"time_limit"}
+        missing = names - set(data) - {"time_limit", "demonstrations"}  # runs from before them had none
         if missing:
             raise ConfigError(f"the stored configuration lacks {', '.join(sorted(missing))}")
         for f in fields(cls):  # a manifest edited by hand: one sentence, not a crash deep in training
@@ -111,12 +112,15 @@ def resolve_config(prog, task: Optional[str] = None, *, algo: Optional[str] = No
                    steps: Optional[int] = None, seed: Optional[int] = None, preset: Optional[str] = None,
                    n_envs: Optional[int] = None, settings: Optional[Mapping[str, Any]] = None,
                    eval_episodes: Optional[int] = None, time_limit: Optional[float] = None,
-                   engine: Optional[str] = None) -> TrainConfig:
+                   engine: Optional[str] = None, demonstrations: Optional[int] = None) -> TrainConfig:
     """Resolve the configuration of training ``task`` of ``prog``.
 
     ``settings`` are hyperparameters by their ``train { ... }`` names (they override the block
     and the preset). ``engine``: ``sbx`` or ``sb3`` (default: the preset's where it has the
-    algorithm). Raises :class:`ConfigError` (one sentence) or ``KeyError`` (unknown task).
+    algorithm). ``demonstrations``: initial states whose oracle sequences go into the replay
+    buffer before learning (default: the preset's, where the algorithm has a replay buffer and the
+    dynamics are known; 0 turns them off). Raises :class:`ConfigError` (one sentence) or
+    ``KeyError`` (unknown task).
     """
     t = prog.task(task).model  # KeyError with a suggestion on an unknown task
     block = dict(t.train)
@@ -156,9 +160,12 @@ def resolve_config(prog, task: Optional[str] = None, *, algo: Optional[str] = No
         raise ConfigError(f"the seed must be 0 or more; got {run_seed}")
     if time_limit is not None and not (time_limit > 0 and time_limit < float("inf")):
         raise ConfigError(f"the time limit must be a positive number of seconds; got {time_limit}")
+    demos = _demonstrations(prog, algo, demonstrations, p.demonstrations)
     if algo in OFF_POLICY:
-        # Memory for what the run can fill, no more (the paper's buffer never drops a sample).
-        hyper["buffer_size"] = int(min(int(hyper.get("buffer_size", 1_000_000)), total + envs))
+        # Memory for what the run can fill, no more (the paper's buffer never drops a sample);
+        # demonstrations are at most one episode per state.
+        hyper["buffer_size"] = int(min(int(hyper.get("buffer_size", 1_000_000)),
+                                       total + envs + demos * (t.episode[1] + 1)))
     elif algo == "ppo":
         rollout = int(hyper.get("n_steps", 2048)) * envs
         batch = int(hyper.get("batch_size", 64))
@@ -173,4 +180,20 @@ def resolve_config(prog, task: Optional[str] = None, *, algo: Optional[str] = No
         # the time-out must be bootstrapped (stable-baselines3's TimeLimit.truncated handling).
         time_limit_terminal="time" in t.observe,
         validation_episodes=p.validation_episodes, validation_seed=VALIDATION_SEED, validate_every=every,
-        eval_episodes=episodes, hyper=hyper, time_limit=None if time_limit is None else float(time_limit))
+        eval_episodes=episodes, hyper=hyper, time_limit=None if time_limit is None else float(time_limit),
+        demonstrations=demos)
+
+
+def _demonstrations(prog, algo: str, explicit: Optional[int], preset: int) -> int:
+    """The demonstration states of a run: the explicit count (refused where there can be none),
+    else the preset's where there can be some, else 0."""
+    from .demonstrations import unavailable
+
+    why = unavailable(prog, algo)
+    if explicit is None:
+        return 0 if why else int(preset)
+    if isinstance(explicit, bool) or int(explicit) != explicit or explicit < 0:
+        raise ConfigError(f"demonstrations must be a whole number, 0 or more; got {explicit!r}")
+    if explicit and why:
+        raise ConfigError(f"demonstrations cannot be used here: {why}")
+    return int(explicit)

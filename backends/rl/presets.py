@@ -13,7 +13,9 @@ strongest: ``asapc train`` flags, the task's ``train { ... }`` block, the preset
   (``benchmarks/train.py`` measures it against ``paper`` side by side; docs/training.md gives the
   evidence): several environments stepped together in numpy, small networks, observations
   scaled into [-1, 1] from the init box, actions scaled into [-1, 1], and the ``sbx`` engine (JAX)
-  for the algorithms it has (:mod:`.engines`; A2C stays on stable-baselines3).
+  for the algorithms it has (:mod:`.engines`; A2C stays on stable-baselines3), and on systems with
+  known dynamics the oracle's action sequences from a few initial states of the run's own seed as
+  demonstrations in the replay buffer of SAC, TD3 and DDPG (:mod:`.demonstrations`).
 """
 
 from __future__ import annotations
@@ -47,6 +49,7 @@ class Preset:
     validations: int          # periodic validations over a run
     algos: Mapping[str, Mapping[str, Any]] = field(default_factory=dict)
     engine: str = "sb3"       # the training engine where it has the algorithm (stable-baselines3 otherwise)
+    demonstrations: int = 0   # initial states whose oracle sequences go into the replay buffer first
 
     def settings(self, algo: str) -> dict[str, Any]:
         return dict(self.algos[algo])
@@ -70,6 +73,7 @@ PAPER = Preset(
                 "gae_lambda": 0.95, "n_epochs": 10, "batch_size": 64, "net_arch": [64, 64]},
     },
     engine="sb3",
+    demonstrations=0,  # the paper learns from its own samples only
 )
 
 _FAST_OFF = {"buffer_size": 1_000_000, "gamma": 0.99, "tau": 0.005, "train_freq": 1, "gradient_steps": 1,
@@ -91,6 +95,7 @@ DEFAULT = Preset(
                 "gae_lambda": 0.95, "n_epochs": 10, "batch_size": 256, "net_arch": [64, 64]},
     },
     engine="sbx",
+    demonstrations=64,
 )
 
 PRESETS: dict[str, Preset] = {p.name: p for p in (DEFAULT, PAPER)}

@@ -85,6 +85,16 @@ class Scaling:
             return a
         return self.act_low + (np.clip(a, -1.0, 1.0) + 1.0) * 0.5 * (self.act_high - self.act_low)
 
+    def policy_action(self, a: np.ndarray) -> np.ndarray:
+        """The inverse of :meth:`action`: the policy's action that the environment's action ``a``
+        (within the bounds) is; the identity without action scaling."""
+        a = np.asarray(a, dtype=np.float64)
+        if self.act_low is None:
+            return a
+        width = self.act_high - self.act_low
+        u = np.divide(2.0 * (a - self.act_low), width, out=np.ones_like(a), where=width > 0) - 1.0
+        return np.clip(u, -1.0, 1.0)
+
     def action_space(self, space: spaces.Box) -> spaces.Box:
         if self.act_low is None:
             return space

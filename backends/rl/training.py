@@ -51,6 +51,8 @@ class TrainProgress(Protocol):
 
     def finish(self) -> None: ...
 
+    # Optional: ``note(line)``, a line for the log before training starts (the demonstrations).
+
 
 @dataclass
 class TrainResult:
@@ -177,7 +179,7 @@ class _Session:
         self.tolerances = sorted(self.task.tolerances)
         self.scaling = Scaling.for_system(prog.system, cfg.observation_scaling, cfg.action_scaling, self.task.init_box)
         self.raw_env = make_vec_env(prog, cfg.task, num_envs=cfg.n_envs, seed=cfg.seed, reward=cfg.reward)
-        self.env = _LearnerEnv(ScaledVecEnv(self.raw_env, self.scaling), cfg.time_limit_terminal)
+        self.env = self.learner_env(self.raw_env)
         val_states = task_states(prog.system, self.task, cfg.validation_episodes, seed=cfg.validation_seed)
         self.validator = Evaluator(prog, cfg.task, val_states, reward=cfg.reward)
         self.curves: list[dict] = []
@@ -194,6 +196,44 @@ class _Session:
     @property
     def seconds(self) -> float:
         return self.seconds_before + (time.perf_counter() - self.started)
+
+    def learner_env(self, raw):
+        """A raw vector env of the task as the learner sees it (scaled, the deadline's handling)."""
+        return _LearnerEnv(ScaledVecEnv(raw, self.scaling), self.cfg.time_limit_terminal)
+
+    def witnesses(self) -> Optional[Any]:
+        """A new run's demonstration sequences from the oracle (:mod:`.demonstrations`), before
+        the model is built (its workers are forked: not from a process running JAX). Their wall
+        time counts as the run's, the time limit's included. None where the run has none."""
+        from .demonstrations import solve, unavailable
+
+        if self.cfg.demonstrations <= 0:
+            why = unavailable(self.prog, self.cfg.algo)
+            self._tell(f"demonstrations: none ({why or '0 asked for'})")
+            return None
+
+        def check_stop() -> None:
+            if self.stop.requested:
+                raise KeyboardInterrupt
+
+        self._tell(f"demonstrations: the oracle on {self.cfg.demonstrations:,} initial states of the run's own seed ...")
+        return solve(self.prog, self.cfg.task, self.cfg.demonstrations, self.cfg.seed, check_stop=check_stop)
+
+    def demonstrate(self, model, witnesses) -> dict:
+        """The witnesses' transitions into ``model``'s replay buffer, told to the progress display."""
+        from .demonstrations import add_demonstrations
+
+        demos = add_demonstrations(self.prog, self.cfg.task, model, self.learner_env, self.scaling, witnesses,
+                                   reward=self.cfg.reward)
+        self.seconds_before += demos.seconds
+        self.started = time.perf_counter()  # what came before is counted in the line above
+        self._tell(demos.text())
+        return demos.to_dict()
+
+    def _tell(self, line: str) -> None:
+        note = getattr(self.progress, "note", None)  # optional in TrainProgress
+        if note is not None:
+            note(line)
 
     def ceiling(self) -> Optional[dict]:
         """The oracle's ceiling per tolerance on the evaluation states, when it is cached (shown
@@ -332,7 +372,8 @@ def train(spec: Union[str, Path, Program], task: Optional[str] = None, *, algo: 
           runs_dir: Union[str, Path] = "runs", resume: bool = False, force: bool = False,
           settings: Optional[Mapping[str, Any]] = None, progress: Optional[TrainProgress] = None,
           evaluate: bool = True, eval_episodes: Optional[int] = None, callbacks: Sequence = (),
-          time_limit: Optional[float] = None, engine: Optional[str] = None) -> TrainResult:
+          time_limit: Optional[float] = None, engine: Optional[str] = None,
+          demonstrations: Optional[int] = None) -> TrainResult:
     """Train ``task`` of a spec with stable-baselines3's API (on torch or JAX) and evaluate the
     best model.
 
@@ -365,7 +406,11 @@ def train(spec: Union[str, Path, Program], task: Optional[str] = None, *, algo: 
     :param eval_episodes: evaluation states (default: the ``train`` block's, else 1000).
     :param callbacks: extra stable-baselines3 callbacks (one returning False ends the run early,
         as finished).
-    :param time_limit: seconds of training after which the run ends, as finished.
+    :param time_limit: seconds of training after which the run ends, as finished (the
+        demonstrations' time included).
+    :param demonstrations: initial states whose oracle action sequences go into the replay buffer
+        before learning (:mod:`asap_dsl.backends.rl.demonstrations`; default: the preset's where
+        the algorithm is off-policy and the dynamics known; 0: none). A resumed run keeps its own.
     :return: the run's directory, configuration, steps, best validation and final evaluation.
     :raises asap_dsl.SpecError: the spec does not load.
     :raises ConfigError: a setting cannot be used (one sentence).
@@ -377,12 +422,12 @@ def train(spec: Union[str, Path, Program], task: Optional[str] = None, *, algo: 
         prog = _program(spec)
         cfg = resolve_config(prog, task, algo=algo, reward=reward, steps=steps, seed=seed, preset=preset,
                              n_envs=n_envs, settings=settings, eval_episodes=eval_episodes, time_limit=time_limit,
-                             engine=engine)
+                             engine=engine, demonstrations=demonstrations)
         _check_memory(prog, cfg)
         run = RunDir(out if out is not None else Path(runs_dir) / default_run_name(prog.file, cfg.task, cfg.algo,
                                                                                  cfg.reward, cfg.seed))
         given = {"task": task, "algo": algo, "engine": engine, "reward": reward, "seed": seed, "preset": preset,
-                 "n_envs": n_envs, "settings": dict(settings or {})}
+                 "n_envs": n_envs, "demonstrations": demonstrations, "settings": dict(settings or {})}
         try:
             return _run(prog, cfg, run, stop, resume=resume, force=force, given=given, steps=steps,
                         time_limit=time_limit, progress=progress, callbacks=callbacks, evaluate=evaluate)
@@ -404,6 +449,9 @@ def _check_memory(prog: Program, cfg: TrainConfig) -> None:
         check_batch(prog, cfg.task, cfg.n_envs, f"--envs {cfg.n_envs:,}", cfg.reward, per_env)
         check_batch(prog, cfg.task, cfg.validation_episodes, f"{cfg.validation_episodes:,} validation states",
                     cfg.reward, 4 * 3 * width)
+        if cfg.demonstrations:  # replayed side by side, each with an episode of transitions kept
+            check_batch(prog, cfg.task, cfg.demonstrations, f"{cfg.demonstrations:,} demonstrations", cfg.reward,
+                        4 * (prog.task(cfg.task).model.episode[1] + 1) * (2 * obs + act + 3))
     except ResourceLimit as err:
         raise ConfigError(str(err)) from None
 
@@ -452,13 +500,18 @@ def _run(prog: Program, cfg: TrainConfig, run: RunDir, stop: Interrupts, *, resu
         if check_target(run.path, force) or run.path.is_dir():  # refused before anything is built
             run.acquire(exclusive=True)  # the run it replaces (or the empty directory) is ours until then
         session = _Session(prog, cfg, run, progress, callbacks, stop)
+        witnesses = session.witnesses()
         model = session.engine.build(cfg.algo, session.env, cfg.hyper, cfg.seed, tensorboard_log=str(run.tensorboard_dir))
+        # Before the run exists: its first checkpoint holds them, so a resume never adds them again.
+        demos = session.demonstrate(model, witnesses) if witnesses is not None else None
         if stop.requested:  # nothing was created yet
             raise KeyboardInterrupt
         spec_file = str(Path(prog.file).resolve())
         manifest = {"spec_file": spec_file, "spec_hash": spec_hash(prog.source), "task": cfg.task,
                     "config": cfg.to_dict(), "versions": package_versions(), "status": "running", "steps_done": 0,
                     "seconds": 0.0, "created": stamp()}
+        if demos is not None:
+            manifest["demonstrations"] = json_safe(demos)
         # Created whole, with a checkpoint at step 0: a run directory that exists can be resumed.
         created = create_run(run.path, manifest, prog.source, force=force, interrupts=stop, held=run.lock,
                              initial=lambda staged: session.checkpoint(model, staged))

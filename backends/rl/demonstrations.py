@@ -1,0 +1,271 @@
+"""The oracle's action sequences as demonstrations in an off-policy learner's replay buffer.
+
+On a system with known dynamics (``ode`` or ``map``) the minimum-time oracle
+(:mod:`asap_dsl.backends.oracle`) finds, from an initial state, an action sequence that reaches
+``asap`` while ``avoid`` stays false and the state inside the state space. Replayed through the
+very environment the learner trains in — the same simulator, reward, observation and action
+scaling, episode ends and SB3's time-limit handling — each step of such a sequence is a true
+transition of the learner's own MDP: an exact witness, not an approximation of one. Before
+learning starts, :func:`add_demonstrations` stores those transitions in ``model.replay_buffer``
+(SAC, TD3 and DDPG, on either engine: sbx uses stable-baselines3's ``ReplayBuffer``).
+
+The initial states come from the task's init box with a seed derived from the run's own
+(:func:`demonstration_seed`), never the evaluation seed nor the validation seed: a policy is
+not shown the answers to the states it is judged on. A sequence whose replay does not reach the
+goal (the env's ``t_reach``) or fails on the way is dropped.
+"""
+
+from __future__ import annotations
+
+import functools
+import time
+from dataclasses import asdict, dataclass
+from typing import Any, Callable, Optional
+
+import numpy as np
+
+from asap_dsl.sampling import EVAL_SEED, task_states
+
+from .config import VALIDATION_SEED
+from .presets import OFF_POLICY
+
+__all__ = ["DEMONSTRATION_SEED_OFFSET", "DEMONSTRATION_STATE_SECONDS", "Demonstrations", "Witnesses",
+           "add_demonstrations", "demonstration_seed", "replay", "solve", "store", "unavailable"]
+
+#: Added to the run's seed for the demonstrations' initial states (and their episode lengths).
+#: Larger than both fixed seeds, so that no run's seed can map onto them.
+DEMONSTRATION_SEED_OFFSET = 10_007
+#: The oracle's search time per demonstration state: a hard state is given up, not waited for.
+DEMONSTRATION_STATE_SECONDS = 5.0
+
+
+def demonstration_seed(run_seed: int) -> int:
+    """The seed of a run's demonstration states: never :data:`EVAL_SEED` nor the validation seed."""
+    seed = int(run_seed) + DEMONSTRATION_SEED_OFFSET
+    assert seed not in (EVAL_SEED, VALIDATION_SEED)
+    return seed
+
+
+def unavailable(prog, algo: str) -> Optional[str]:
+    """Why a run of ``algo`` on ``prog`` cannot have demonstrations (None when it can)."""
+    if algo not in OFF_POLICY:
+        return f"{algo} has no replay buffer (only {', '.join(OFF_POLICY)} do)"
+    if prog.system.kind == "simulator":
+        return "the system is a black box (the oracle needs its dynamics)"
+    return None
+
+
+@dataclass(frozen=True)
+class Demonstrations:
+    """What :func:`add_demonstrations` did: ``states`` drawn, ``solved`` by the oracle within an
+    episode, ``added`` sequences stored (their replay reached the goal), ``transitions`` stored,
+    the oracle's and the whole step's wall time; ``reason`` why none were tried."""
+
+    states: int = 0
+    solved: int = 0
+    added: int = 0
+    transitions: int = 0
+    oracle_seconds: float = 0.0
+    seconds: float = 0.0
+    seed: Optional[int] = None
+    reason: Optional[str] = None
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+    def text(self) -> str:
+        """One line for the training log."""
+        if self.reason is not None:
+            return f"demonstrations: none ({self.reason})"
+        return (f"demonstrations: {self.added} of {self.states} states ({self.solved} solved by the oracle in "
+                f"{self.oracle_seconds:.1f} s, seed {self.seed}), {self.transitions:,} transitions in the replay "
+                f"buffer ({self.seconds:.1f} s in all)")
+
+
+@dataclass
+class Transitions:
+    """Transitions as the learner's replay buffer takes them, one row each: observations and next
+    observations as the policy sees them, the buffer's actions (in [-1, 1]), the env's rewards,
+    ``dones`` and ``timeouts`` (SB3's ``TimeLimit.truncated``)."""
+
+    obs: np.ndarray
+    next_obs: np.ndarray
+    actions: np.ndarray
+    rewards: np.ndarray
+    dones: np.ndarray
+    timeouts: np.ndarray
+
+    def __len__(self) -> int:
+        return len(self.rewards)
+
+
+@functools.lru_cache(maxsize=1)
+def _start_at_class():
+    """Built on first use: stable-baselines3 (and torch) load only when a replay runs."""
+    from stable_baselines3.common.vec_env import VecEnvWrapper
+
+    class StartAt(VecEnvWrapper):
+        """A vector env whose ``reset`` starts every entry at given states and episode lengths
+        (the rest passes through): the bottom of the learner's wrapper stack for a replay."""
+
+        def __init__(self, venv, states: np.ndarray, k: np.ndarray):
+            super().__init__(venv)
+            self.states, self.k = states, k
+
+        def reset(self):
+            return self.venv.core.start(self.states, self.k)
+
+        def step_wait(self):
+            return self.venv.step_wait()
+
+    return StartAt
+
+
+def replay(prog, task: str, reward: Any, wrap: Callable, policy_action: Callable[[np.ndarray], np.ndarray],
+           buffer_action: Callable[[np.ndarray], np.ndarray], starts: np.ndarray, sequences: list[np.ndarray],
+           lengths: np.ndarray) -> tuple[Transitions, np.ndarray]:
+    """Replay each action sequence (environment units, ``[N_i, m]``) from its initial state
+    through the learner's environment and collect the transitions as SB3's off-policy collection
+    stores them (``_store_transition``: a finished entry's next observation is its
+    ``terminal_observation``, its timeout ``TimeLimit.truncated``).
+
+    :param wrap: the learner's wrappers around a raw vector env (scaling, time-limit handling).
+    :param policy_action: environment actions ``[B, m]`` to the actions the policy would give.
+    :param buffer_action: the policy's actions to what the replay buffer stores.
+    :param lengths: the episode length of each replay (at least its sequence's length).
+    :return: the transitions of the sequences that reached the goal without failing, and which
+        those were (a bool per sequence).
+    """
+    from asap_dsl.env import make_vec_env
+
+    B = len(sequences)
+    raw = make_vec_env(prog, task, num_envs=B, reward=reward)
+    env = wrap(_start_at_class()(raw, np.asarray(starts, float), np.asarray(lengths, np.int64)))
+    obs = env.reset()
+    m = raw.action_space.shape[0]
+    n_steps = np.array([len(s) for s in sequences])
+    alive = np.ones(B, dtype=bool)   # still replaying its sequence
+    reached = np.zeros(B, dtype=bool)
+    rows: list[list[tuple]] = [[] for _ in range(B)]
+    centre = policy_action(((raw.action_space.low + raw.action_space.high) / 2.0)[None].astype(np.float64))[0]
+    for t in range(int(n_steps.max(initial=0))):
+        acts = np.tile(centre, (B, 1))  # entries past their sequence act too (the batch steps together)
+        for i in np.flatnonzero(alive):
+            acts[i] = policy_action(np.asarray(sequences[i][t], float).reshape(1, m))[0]
+        env.step_async(acts)
+        new_obs, rew, done, infos = env.step_wait()
+        for i in np.flatnonzero(alive):
+            info = infos[i]
+            nxt = info["terminal_observation"] if done[i] else new_obs[i]
+            rows[i].append((obs[i].copy(), np.array(nxt, np.float32), buffer_action(acts[i:i + 1])[0], float(rew[i]),
+                            bool(done[i]), bool(info.get("TimeLimit.truncated", False))))
+            failed = done[i] and info.get("end_reason") != "time_limit"
+            if failed:
+                alive[i] = False
+            elif done[i] or t + 1 == n_steps[i]:
+                alive[i] = False
+                reached[i] = info.get("t_reach") is not None
+        obs = new_obs
+    kept = [r for i in range(B) if reached[i] for r in rows[i]]
+    n_obs, n_act = env.observation_space.shape[0], m
+    if not kept:
+        z = np.zeros((0, n_obs), np.float32)
+        return Transitions(z, z.copy(), np.zeros((0, n_act), np.float32), np.zeros(0, np.float32),
+                           np.zeros(0, bool), np.zeros(0, bool)), reached
+    cols = list(zip(*kept))
+    return Transitions(np.stack(cols[0]).astype(np.float32), np.stack(cols[1]).astype(np.float32),
+                       np.stack(cols[2]).astype(np.float32), np.asarray(cols[3], np.float32),
+                       np.asarray(cols[4], bool), np.asarray(cols[5], bool)), reached
+
+
+def store(replay_buffer, tr: Transitions) -> int:
+    """Add the transitions to an SB3 ``ReplayBuffer`` through its own ``add`` (one row of
+    ``n_envs`` transitions per call); returns the slots filled. A last, partial row is completed
+    with the first transitions again: every transition is stored at least once, and no slot the
+    learner samples holds anything but a replayed transition."""
+    n, T = replay_buffer.n_envs, len(tr)
+    if T == 0:
+        return 0
+    rows = min(-(-T // n), replay_buffer.buffer_size)
+    idx = np.arange(rows * n) % T
+    for r in range(rows):
+        j = idx[r * n:(r + 1) * n]
+        infos = [{"TimeLimit.truncated": bool(x)} for x in tr.timeouts[j]]
+        replay_buffer.add(tr.obs[j], tr.next_obs[j], tr.actions[j], tr.rewards[j], tr.dones[j], infos)
+    return rows * n
+
+
+@dataclass
+class Witnesses:
+    """The oracle's action sequences for a run's demonstration states: ``starts [K, n]``, one
+    sequence ``[N_i, m]`` each (environment units, ``1 <= N_i <=`` the longest episode) and the
+    episode length of its replay; ``states`` drawn with ``seed``; ``reason`` why none were sought."""
+
+    seed: int
+    states: int
+    starts: np.ndarray
+    sequences: list
+    lengths: np.ndarray
+    oracle_seconds: float = 0.0
+    reason: Optional[str] = None
+
+
+def solve(prog, task: str, count: int, run_seed: int, *, workers: Optional[int] = None,
+          state_seconds: float = DEMONSTRATION_STATE_SECONDS,
+          check_stop: Optional[Callable[[], None]] = None) -> Witnesses:
+    """Draw ``count`` initial states of ``task`` (seed :func:`demonstration_seed` of ``run_seed``)
+    and solve them with the oracle (``workers`` processes, default one per core). A sequence
+    longer than the task's longest episode is left out, as is a state already in the goal; each
+    replay's episode length is drawn from the task's range, at least its sequence's length.
+    ``check_stop()`` is called as the oracle progresses (it raises to abandon the search). Call
+    it before JAX is loaded: the oracle's workers are forked.
+    """
+    from asap_dsl.limits import available_cores
+
+    from ..oracle.goals import OracleUnsupported
+    from ..oracle.solver import run as run_oracle
+
+    start = time.perf_counter()
+    seed = demonstration_seed(run_seed)
+    tm = prog.task(task).model
+    n = prog.system.n_state
+    states = task_states(prog.system, tm, int(count), seed=seed)
+    n_workers = max(1, min(int(workers or available_cores()), len(states)))
+    try:
+        report = run_oracle(prog, task, states=states, workers=n_workers, time_limit=state_seconds,
+                            progress=None if check_stop is None else (lambda _k: check_stop()))
+    except OracleUnsupported as err:
+        return Witnesses(seed, len(states), np.zeros((0, n)), [], np.zeros(0, np.int64),
+                         time.perf_counter() - start, f"the oracle does not treat this task: {err}")
+    kmin, kmax = tm.episode
+    usable = [r for r in report.results
+              if r.status == "solved" and r.actions is not None and 1 <= len(r.actions) <= kmax]
+    rng = np.random.default_rng([seed, 1])
+    lengths = np.array([rng.integers(max(kmin, len(r.actions)), kmax + 1) for r in usable], dtype=np.int64)
+    starts = np.stack([np.asarray(r.x0, float) for r in usable]) if usable else np.zeros((0, n))
+    return Witnesses(seed, len(states), starts, [np.asarray(r.actions, float) for r in usable], lengths,
+                     time.perf_counter() - start)
+
+
+def add_demonstrations(prog, task: str, model, wrap: Callable, scaling, witnesses: Witnesses,
+                       reward: Any = None) -> Demonstrations:
+    """Replay each of the oracle's sequences through the learner's environment (``wrap`` and
+    ``scaling``: :class:`~asap_dsl.backends.rl.sb3.Scaling`) and store the transitions of those
+    that reach the goal in ``model.replay_buffer``; returns what was done."""
+    start = time.perf_counter()
+    w = witnesses
+    if w.reason is not None:
+        return Demonstrations(states=w.states, seed=w.seed, oracle_seconds=w.oracle_seconds,
+                              seconds=w.oracle_seconds, reason=w.reason)
+    added = stored = 0
+    if w.sequences:
+        def buffer_action(u: np.ndarray) -> np.ndarray:  # as SB3's _sample_action stores it
+            return np.clip(model.policy.scale_action(u), -1.0, 1.0)
+
+        tr, reached = replay(prog, task, reward, wrap, scaling.policy_action, buffer_action, w.starts, w.sequences,
+                             w.lengths)
+        added, stored = int(reached.sum()), len(tr)
+        store(model.replay_buffer, tr)
+    return Demonstrations(states=w.states, solved=len(w.sequences), added=added, transitions=stored,
+                          oracle_seconds=w.oracle_seconds, seconds=w.oracle_seconds + time.perf_counter() - start,
+                          seed=w.seed)

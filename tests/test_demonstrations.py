@@ -1,0 +1,161 @@
+"""Oracle demonstrations in the replay buffer: the buffer holds exactly the replayed transitions
+before learning (actions in [-1, 1] that map back onto the oracle's), the demonstration states are
+neither the evaluation nor the validation states, ``--demonstrations 0`` adds none, a resume does
+not add them again, and runs that cannot have them are told why."""
+
+from __future__ import annotations
+
+import pickle
+
+import numpy as np
+import pytest
+
+import asap_dsl
+from asap_dsl.runs import RunDir
+from asap_dsl.sampling import EVAL_SEED, task_states
+from conftest import RAIL, asapc
+
+FAST = {"net_arch": [16, 16], "learning_starts": 10_000, "batch_size": 32}  # no update within these tests
+
+
+@pytest.fixture(scope="module")
+def rail():
+    return asap_dsl.loads(RAIL, "rail.asap")
+
+
+def _learner(prog, engine: str = "sb3", n_envs: int = 2):
+    """A model on the learner's environment, as a run builds them (default preset's scaling)."""
+    from asap_dsl.backends.rl.config import resolve_config
+    from asap_dsl.backends.rl.engines import get_engine
+    from asap_dsl.backends.rl.sb3 import Scaling, ScaledVecEnv
+    from asap_dsl.env import make_vec_env
+
+    cfg = resolve_config(prog, n_envs=n_envs, settings=FAST, engine=engine)
+    scaling = Scaling.for_system(prog.system, cfg.observation_scaling, cfg.action_scaling, prog.task(None).model.init_box)
+    env = ScaledVecEnv(make_vec_env(prog, num_envs=n_envs, seed=0), scaling)
+    model = get_engine(engine).build("sac", env, cfg.hyper, 0)
+    return model, scaling, (lambda raw: ScaledVecEnv(raw, scaling))
+
+
+def _buffer_rows(rb) -> tuple[np.ndarray, ...]:
+    n = rb.pos  # rows written (never full here)
+    flat = lambda a: a[:n].reshape(n * rb.n_envs, *a.shape[2:])  # noqa: E731
+    return (flat(rb.observations), flat(rb.actions), flat(rb.rewards), flat(rb.next_observations), flat(rb.dones),
+            flat(rb.timeouts))
+
+
+def test_the_buffer_holds_exactly_the_replayed_oracle_sequences(rail):
+    from asap_dsl.backends.oracle.solver import run
+    from asap_dsl.backends.rl.demonstrations import add_demonstrations, demonstration_seed, solve
+
+    model, scaling, wrap = _learner(rail)
+    assert model.replay_buffer.pos == 0
+    demos = add_demonstrations(rail, "go", model, wrap, scaling, solve(rail, "go", 24, 0, workers=1))
+    assert demos.reason is None and demos.added > 10 and demos.added == demos.solved
+    obs, acts, rew, nxt, done, _ = _buffer_rows(model.replay_buffer)
+    T = demos.transitions
+    assert len(obs) == -(-T // 2) * 2  # whole rows of n_envs; a last half row repeats the first transition
+    assert np.array_equal(obs[T:], obs[:len(obs) - T]) and np.array_equal(acts[T:], acts[:len(obs) - T])
+    obs, acts, rew, nxt, done = obs[:T], acts[:T], rew[:T], nxt[:T], done[:T]
+    assert np.all(np.abs(acts) <= 1.0) and not done.any()  # a reach ends no RAIL episode (deadline 20)
+
+    # Independently: the oracle on the same seeded states, each sequence stepped by hand.
+    tm = rail.task(None).model
+    states = task_states(rail.system, tm, 24, seed=demonstration_seed(0))
+    report = run(rail, "go", states=states, workers=1)
+    expect = []
+    for r in report.results:
+        if r.status == "solved" and r.actions is not None and len(r.actions) >= 1:
+            x = np.array(r.x0, float)
+            for a in r.actions:
+                nx = x + 0.1 * 2 * np.clip(a, -1, 1)  # x' = 2u, exact for a constant input
+                expect.append((scaling.observation(x[None])[0], a, scaling.observation(nx[None])[0]))
+                x = nx
+    assert len(expect) == T
+    for (o, a, n2), o_b, a_b, n_b in zip(expect, obs, acts, nxt):
+        assert np.allclose(o_b, o, atol=1e-5) and np.allclose(n_b, n2, atol=1e-4)
+        assert np.allclose(scaling.action(a_b), a, atol=1e-5)  # the buffer's action is the oracle's, scaled
+    goal_steps = np.cumsum([len(r.actions) for r in report.results if r.status == "solved" and len(r.actions)]) - 1
+    assert np.all(rew[goal_steps] == rew.max())  # the reaching step earns r_sat
+
+
+def test_demonstration_states_are_not_evaluation_or_validation_states(rail):
+    from asap_dsl.backends.rl.config import VALIDATION_SEED
+    from asap_dsl.backends.rl.demonstrations import demonstration_seed
+
+    assert all(demonstration_seed(s) not in (EVAL_SEED, VALIDATION_SEED) for s in range(5000))
+    tm = rail.task(None).model
+    demo = task_states(rail.system, tm, 256, seed=demonstration_seed(0))
+    for seed in (EVAL_SEED, VALIDATION_SEED):
+        other = task_states(rail.system, tm, 1000, seed=seed)
+        assert not np.isin(demo.ravel(), other.ravel()).any()
+
+
+def test_who_gets_demonstrations(rail):
+    from asap_dsl.backends.rl.config import ConfigError, resolve_config
+
+    assert resolve_config(rail).demonstrations == 64  # the default preset, SAC, known dynamics
+    assert resolve_config(rail, preset="paper").demonstrations == 0
+    assert resolve_config(rail, algo="ppo").demonstrations == 0  # no replay buffer: none, silently
+    assert resolve_config(rail, demonstrations=0).demonstrations == 0
+    with pytest.raises(ConfigError, match="ppo has no replay buffer"):
+        resolve_config(rail, algo="ppo", demonstrations=8)
+    with pytest.raises(ConfigError, match="0 or more"):
+        resolve_config(rail, demonstrations=-1)
+
+
+def test_zero_adds_none_and_a_resume_does_not_add_them_again(rail, tmp_path, capsys):
+    spec = tmp_path / "rail.asap"
+    spec.write_text(RAIL.replace("tolerances 20, 10, 5", "tolerances 20, 10, 5\n  train { learning_starts = 10000 }"))
+    base = ["train", spec, "--steps", 40, "--envs", 2, "--engine", "sb3", "--no-eval"]
+
+    def buffer_pos(out) -> int:
+        with open(out / "checkpoint" / "replay.pkl", "rb") as f:
+            return int(pickle.load(f).pos)
+
+    code, _, err = asapc(capsys, *base, "--demonstrations", 0, "--out", tmp_path / "off")
+    assert code == 0 and "demonstrations: none (0 asked for)" in err
+    assert RunDir(tmp_path / "off").read_manifest()["config"]["demonstrations"] == 0
+    assert buffer_pos(tmp_path / "off") == 40 // 2  # the run's own steps only
+
+    out = tmp_path / "on"
+    code, _, err = asapc(capsys, *base, "--demonstrations", 16, "--out", out)
+    assert code == 0 and "demonstrations: " in err and " transitions in the replay buffer" in err
+    manifest = RunDir(out).read_manifest()
+    slots = -(-manifest["demonstrations"]["transitions"] // 2)
+    assert manifest["config"]["demonstrations"] == 16 and slots > 0
+    assert buffer_pos(out) == slots + 40 // 2
+    code, _, err = asapc(capsys, "train", spec, "--out", out, "--resume", "--steps", 80, "--no-eval")
+    assert code == 0 and "demonstrations" not in err
+    assert buffer_pos(out) == slots + 80 // 2
+
+
+def test_sbx_models_take_them_through_the_same_api():
+    """What add_demonstrations uses of a model: SB3's off-policy loop and ReplayBuffer, and the
+    policy's scale_action (building an sbx model compiles for seconds: the runs measure that)."""
+    pytest.importorskip("sbx")
+    from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
+    from stable_baselines3.common.policies import BasePolicy
+
+    from asap_dsl.backends.rl.engines import get_engine
+
+    for algo in ("sac", "td3", "ddpg"):
+        cls = get_engine("sbx")._model_class(algo)
+        assert issubclass(cls, OffPolicyAlgorithm) and issubclass(cls.policy_aliases["MlpPolicy"], BasePolicy)
+
+
+def test_a_replay_that_ends_its_episode_stores_the_terminal_observation_and_the_timeout(rail):
+    from asap_dsl.backends.oracle.solver import run
+    from asap_dsl.backends.rl.demonstrations import replay
+
+    _, scaling, wrap = _learner(rail)
+    states = np.array([[-0.5], [0.2], [1.0]])  # the last starts in the goal: nothing to replay, dropped below
+    seqs = [np.asarray(r.actions, float) for r in run(rail, "go", states=states[:2], workers=1).results]
+    tr, reached = replay(rail, "go", None, wrap, scaling.policy_action, lambda u: u, states[:2], seqs,
+                         np.array([len(s) for s in seqs]))  # episodes exactly as long as the sequences
+    assert reached.all() and len(tr) == sum(map(len, seqs))
+    ends = np.cumsum([len(s) for s in seqs]) - 1
+    assert tr.dones[ends].all() and tr.timeouts[ends].all() and not tr.dones[:ends[0]].any()
+    # The next observation of a time-out is where the episode ended (in the goal), not the reset state.
+    last = scaling.obs_centre + tr.next_obs[ends].astype(float) * scaling.obs_half
+    assert np.all(np.abs(last[:, 0] - 1.0) <= 0.2 + 1e-6)
