@@ -50,8 +50,8 @@ def _child(args) -> dict:
         row = {"variant": args.child, "steps": res.steps, "wall": wall, "cpu": cpu, "training": res.seconds,
                "validations": len(res.curves)}
         if args.algo in ("sac", "td3", "ddpg"):
-            row["grad_ms"], row["grad_cpu_ms"] = _gradient_step_ms(get_engine(engine), args.algo, out / "checkpoint", res.config.hyper,
-                                               args.grad_steps)
+            row["grad_ms"], row["grad_cpu_ms"] = _gradient_step_ms(get_engine(engine), args.algo, out / "checkpoint",
+                                                                   res.config.hyper, args.grad_steps)
     return row
 
 
@@ -97,7 +97,8 @@ def main() -> int:
             return 1
         row = json.loads(r.stdout.strip().splitlines()[-1])
         rows.append(row)
-        grad = f"; a gradient step {row['grad_ms']:.2f} ms ({row['grad_cpu_ms']:.2f} ms CPU)" if "grad_ms" in row else ""
+        grad = (f"; a gradient step {row['grad_ms']:.2f} ms ({row['grad_cpu_ms']:.2f} ms CPU)"
+                if "grad_ms" in row else "")
         print(f"  {variant:<10} {row['wall']:7.1f} s ({row['cpu']:.1f} s CPU) for {row['steps']:,} steps, "
               f"{row['validations']} validations, {row['steps'] / row['wall']:,.0f} steps/s{grad}", flush=True)
     base = rows[-1]

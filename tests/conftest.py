@@ -71,6 +71,27 @@ task go {
 """
 
 
+def asapc(capsys, *argv):
+    """Exit status, stdout and stderr of ``asapc`` run in this process (argparse's own errors exit
+    through SystemExit)."""
+    from asap_dsl import cli
+
+    try:
+        code = cli.main([str(a) for a in argv])
+    except SystemExit as e:
+        code = e.code
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
+def one_line_error(err: str) -> str:
+    """The one line ``asapc: error: ...`` that ``err`` must be, no traceback."""
+    assert "Traceback" not in err, err
+    lines = [line for line in err.strip().splitlines() if line.strip()]
+    assert len(lines) == 1 and lines[0].startswith("asapc: error:"), err
+    return lines[0]
+
+
 @pytest.fixture()
 def tiny(tmp_path):
     """The rail spec written to a file (runs record and check the file they were trained on)."""

@@ -19,10 +19,9 @@ import numpy as np
 import pytest
 
 import asap_dsl
-from asap_dsl import cli
 from asap_dsl.checker_common import ALGORITHMS
 from asap_dsl.runs import RunDir
-from conftest import RAIL
+from conftest import RAIL, asapc, one_line_error
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -49,22 +48,6 @@ def _cache(tmp_path, monkeypatch):
     monkeypatch.setenv("ASAP_CACHE_DIR", str(tmp_path / "cache"))
 
 
-def _cli(capsys, *argv):
-    try:
-        code = cli.main([str(a) for a in argv])
-    except SystemExit as e:
-        code = e.code
-    out, err = capsys.readouterr()
-    return code, out, err
-
-
-def _one_line_error(err: str) -> str:
-    assert "Traceback" not in err
-    lines = [line for line in err.strip().splitlines() if line.strip()]
-    assert len(lines) == 1 and lines[0].startswith("asapc: error:"), err
-    return lines[0]
-
-
 def _load(engine: str, algo: str, path: Path):
     from asap_dsl.backends.rl.engines import get_engine
 
@@ -74,7 +57,7 @@ def _load(engine: str, algo: str, path: Path):
 @pytest.mark.parametrize("engine, algo", _pairs())
 def test_every_algorithm_trains_and_evaluates_on_each_engine_that_has_it(tmp_path, capsys, engine, algo):
     spec, out = _spec(tmp_path, algo), tmp_path / "run"
-    code, _, err = _cli(capsys, "train", spec, "--algo", algo, "--engine", engine, "--steps", 300, "--envs", 2,
+    code, _, err = asapc(capsys, "train", spec, "--algo", algo, "--engine", engine, "--steps", 300, "--envs", 2,
                         "--out", out, "--quiet", "--no-eval")
     assert code == 0, err
     manifest = RunDir(out).read_manifest()
@@ -82,18 +65,18 @@ def test_every_algorithm_trains_and_evaluates_on_each_engine_that_has_it(tmp_pat
     assert (out / "checkpoint" / "replay.pkl").is_file() == (algo not in ("ppo", "a2c"))
     model = _load(engine, algo, out / "checkpoint" / "model.zip")
     assert model.num_timesteps >= 300 and model._n_updates > 0  # it learned, not only stepped
-    code, text, err = _cli(capsys, "eval", out, "--no-oracle", "--episodes", 30, "--format", "json")
+    code, text, err = asapc(capsys, "eval", out, "--no-oracle", "--episodes", 30, "--format", "json")
     assert code == 0, err
     ev = json.loads(text)
     assert ev["episodes"] == 30 and [r["tolerance"] for r in ev["rows"]] == [20, 10, 5]
 
 
 def test_an_engine_without_the_algorithm_is_one_sentence(tiny, tmp_path, capsys):
-    code, _, err = _cli(capsys, "train", tiny, "--algo", "a2c", "--engine", "sbx", "--out", tmp_path / "r", "--quiet")
-    line = _one_line_error(err)
+    code, _, err = asapc(capsys, "train", tiny, "--algo", "a2c", "--engine", "sbx", "--out", tmp_path / "r", "--quiet")
+    line = one_line_error(err)
     assert code == 2 and "the sbx engine has no a2c" in line and "sb3" in line, line
     assert not (tmp_path / "r" / "run.json").exists()
-    code, _, err = _cli(capsys, "train", tiny, "--engine", "jax", "--out", tmp_path / "r", "--quiet")
+    code, _, err = asapc(capsys, "train", tiny, "--engine", "jax", "--out", tmp_path / "r", "--quiet")
     assert code == 2 and "invalid choice" in err.strip().splitlines()[-1]
 
 
@@ -120,8 +103,9 @@ def test_a_run_of_one_engine_is_not_resumed_by_the_other(tmp_path, capsys):
         out = tmp_path / engine
         asap_dsl.train(spec, engine=engine, steps=200, n_envs=2, out=out, evaluate=False)
         before = (out / "run.json").read_text()
-        code, _, err = _cli(capsys, "train", spec, "--out", out, "--resume", "--engine", other, "--steps", 300, "--quiet")
-        line = _one_line_error(err)
+        code, _, err = asapc(capsys, "train", spec, "--out", out, "--resume", "--engine", other, "--steps", 300,
+                             "--quiet")
+        line = one_line_error(err)
         assert code == 1 and f"--engine {other} (the run has {engine})" in line, line
         assert (out / "run.json").read_text() == before
         # without --engine, --resume continues on the run's own engine

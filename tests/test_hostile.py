@@ -114,7 +114,8 @@ CASES = {
     # 7. settings that would exhaust the machine
     "substeps-1e9": (lambda tmp: spec(tmp, edit("dt = 0.1", "dt = 0.1\n  integrator rk4(substeps = 1000000000)")),
                      LINT_SHOW + ORACLE),
-    # 8. simulator factories: never imported by lint, show or oracle
+    # 8. simulator factories: never imported by lint or show; oracle plans through them (a factory that
+    #    ends its process is probed in a child first)
     "factory-exit": (lambda tmp: spec(tmp, edit("  ode {\n    x' = y\n    y' = u\n  }", '  simulator "sys:exit"')),
                      LINT_SHOW + ORACLE),
     "factory-system": (lambda tmp: spec(tmp, edit("  ode {\n    x' = y\n    y' = u\n  }", '  simulator "os:abort"')),

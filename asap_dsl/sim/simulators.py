@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import importlib
 import inspect
+import os
 from typing import Any, Callable, Optional
 
 import numpy as np
@@ -189,6 +190,12 @@ def build_simulator(system: SystemModel, batch: int = 1, file: Optional[str] = N
         known = ", ".join(f'"{n}"' for n in registered_simulators())
         raise SimulatorError(f"{where}: simulator \"{target}\" is not registered (known: {known}) and is not "
                              "\"package.module:factory\"")
+    _probe_once(where, target, batch)
+    return CheckedSimulator(_user_factory(where, target, batch), system, batch, file, user=True)
+
+
+def _user_factory(where: str, target: str, batch: int) -> Any:
+    """Import ``package.module:factory`` and call it; every failure is one SimulatorError."""
     module_name, attr = target.split(":", 1)
     try:
         module = importlib.import_module(module_name)
@@ -204,7 +211,55 @@ def build_simulator(system: SystemModel, batch: int = 1, file: Optional[str] = N
         raise SimulatorError(f"{where}: simulator \"{target}\": '{attr}' is not callable (a factory returning a "
                              "simulator is expected)")
     try:
-        inner = _call_factory(factory, batch)
+        return _call_factory(factory, batch)
     except _USER_FAILURES as err:  # noqa: BLE001
         raise SimulatorError(f"{where}: simulator \"{target}\": the factory raised {type(err).__name__}: {err}") from err
-    return CheckedSimulator(inner, system, batch, file, user=True)
+
+
+_PROBED: set[tuple[str, int]] = set()
+_PROBE_SECONDS = 120.0
+
+
+def _probe_once(where: str, target: str, batch: int) -> None:
+    """Build the user's simulator once in a forked child first, so that a factory which ends its
+    process (``os.abort()``, ``os._exit``, a crash in native code) is one sentence here instead of
+    a silent death of asapc. A Python exception is left to the in-process build, which words it;
+    a child that cannot finish in time (a lock held across the fork) is not held against the factory."""
+    if (target, batch) in _PROBED or not hasattr(os, "fork"):
+        return
+    _PROBED.add((target, batch))
+    import signal
+    import time
+    import warnings
+
+    with warnings.catch_warnings():  # the child only imports and calls the factory, then leaves
+        warnings.simplefilter("ignore", RuntimeWarning)
+        pid = os.fork()
+    if pid == 0:  # the child: never returns into the caller's code
+        code = 3
+        try:
+            _user_factory(where, target, batch)
+            code = 0
+        except BaseException:  # noqa: BLE001 — reported by the parent's own build
+            pass
+        os._exit(code)
+    deadline = time.monotonic() + _PROBE_SECONDS
+    while True:
+        done, status = os.waitpid(pid, os.WNOHANG)
+        if done:
+            break
+        if time.monotonic() > deadline:
+            os.kill(pid, signal.SIGKILL)
+            os.waitpid(pid, 0)
+            return
+        time.sleep(0.01)
+    if os.WIFSIGNALED(status):
+        sig = os.WTERMSIG(status)
+        try:
+            name = signal.Signals(sig).name
+        except ValueError:
+            name = f"signal {sig}"
+        raise SimulatorError(f"{where}: simulator \"{target}\": building it killed its process ({name})")
+    if os.WIFEXITED(status) and os.WEXITSTATUS(status) not in (0, 3):
+        raise SimulatorError(f"{where}: simulator \"{target}\": building it ended its process "
+                             f"(exit status {os.WEXITSTATUS(status)})")
