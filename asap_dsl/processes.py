@@ -23,7 +23,7 @@ import time
 from contextlib import contextmanager
 from typing import Callable, Iterator, Optional
 
-__all__ = ["Aborted", "Interrupts", "die_with_parent"]
+__all__ = ["Aborted", "Interrupts", "die_with_parent", "pool_size"]
 
 STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
 
@@ -149,3 +149,11 @@ def die_with_parent(parent: int, sig: int = signal.SIGKILL, every: float = 1.0) 
                 return
 
     threading.Thread(target=watch, name="die-with-parent", daemon=True).start()
+
+
+def pool_size(workers: int) -> int:
+    """How many processes a pool of ``workers`` may have here: one (no pool) inside a daemonic
+    process — a sweep's worker training with demonstrations, say — which may not have children."""
+    import multiprocessing as mp
+
+    return 1 if mp.current_process().daemon else workers

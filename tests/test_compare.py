@@ -52,7 +52,7 @@ def test_greedy_and_oracle_controllers(tiny):
 
 def test_compare_writes_the_report_and_reuses_finished_runs(tiny, tmp_path):
     out = tmp_path / "report"
-    r = _sweep(tiny, out)
+    r = _sweep(tiny, out, "--engine", "sb3")
     assert r.returncode == 0, r.stderr
     assert "Traceback" not in r.stderr
     assert "Table 1 — rewards" in r.stdout and "oracle ceiling" in r.stdout
@@ -66,8 +66,9 @@ def test_compare_writes_the_report_and_reuses_finished_runs(tiny, tmp_path):
     assert "http://" not in html and "https://" not in html and "<link" not in html and "<script" not in html
     first = _manifests(out)
     assert len(first) == 2 and all(m["status"] == "finished" for m in first.values())
+    assert {m["config"]["engine"] for m in first.values()} == {"sb3"}  # --engine reaches every run
     # again: nothing is retrained, the report is the same
-    r2 = _sweep(tiny, out)
+    r2 = _sweep(tiny, out, "--engine", "sb3")
     assert r2.returncode == 0, r2.stderr
     assert _manifests(out) == first
     assert "reused" in (out / "report.md").read_text()
@@ -183,4 +184,6 @@ def test_bad_compare_flags(tiny, capsys):
     assert code == 2 and "unknown reward 'bogus'" in err
     code, err = run("compare", tiny, "--tasks", "nope")
     assert code == 2 and "no task named 'nope'" in err
+    code, err = run("compare", tiny, "--algos", "sac,a2c", "--engine", "sbx")  # checked before anything trains
+    assert code == 2 and "the sbx engine has no a2c" in err
     assert "Traceback" not in err

@@ -39,6 +39,10 @@ def fill_compare_subparser(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--seeds", type=positive_int, default=3, help="seeds per configuration (default 3)")
     p.add_argument("--steps", type=steps_int, help="environment steps per run (default: the preset's)")
     p.add_argument("--preset", default="default", help="default or paper")
+    from asap_dsl.backends.rl.engines import ENGINES
+
+    p.add_argument("--engine", choices=ENGINES, help="what trains every run: sbx (JAX) or sb3 (stable-baselines3 on "
+                   "torch; default: the preset's engine where it has the algorithm)")
     add_episodes(p, "evaluation states (default 1000)")
     add_workers(p, "training processes")
     p.add_argument("--ray", metavar="ADDRESS", type=ray_address,
@@ -124,7 +128,7 @@ def compare_command(args: argparse.Namespace, out: Optional[TextIO] = None, err:
         raise UsageError(f"unknown preset '{args.preset}'; choose {' or '.join(PRESETS)}")
     n_workers = workers(args)
     try:
-        jobs = plan(args.files, args.tasks, args.rewards, args.algos, args.seeds, args.preset, args.steps)
+        jobs = plan(args.files, args.tasks, args.rewards, args.algos, args.seeds, args.preset, args.steps, args.engine)
         progs = {spec: asap_dsl.load(spec) for spec in {j.spec for j in jobs}}
         for j in jobs:  # every reward and setting checked before anything trains
             job_config(j, progs[j.spec])
@@ -138,7 +142,7 @@ def compare_command(args: argparse.Namespace, out: Optional[TextIO] = None, err:
             res = compare(args.files, tasks=args.tasks, rewards=args.rewards, algos=args.algos, seeds=args.seeds,
                           steps=args.steps, preset=args.preset, workers=n_workers, ray=args.ray, out=args.out,
                           episodes=args.episodes, on_event=progress, oracle_workers=available_cores(),
-                          ray_timeout=args.ray_timeout)
+                          ray_timeout=args.ray_timeout, engine=args.engine)
         finally:  # the bar stops before anything else is printed
             if progress:
                 progress.close()

@@ -115,8 +115,10 @@ def compare(specs: Sequence[str], *, tasks: Optional[Sequence[str]] = None,
             steps: Optional[int] = None, preset: str = "default", workers: int = 1, ray: Optional[str] = None,
             out: str = "reports/compare", episodes: int = 1000,
             on_event: Optional[Callable[[str, Job, Optional[dict]], None]] = None,
-            oracle_workers: Optional[int] = None, ray_timeout: float = 30.0) -> CompareResult:
+            oracle_workers: Optional[int] = None, ray_timeout: float = 30.0,
+            engine: Optional[str] = None) -> CompareResult:
     """Train what is missing, evaluate everything on the same states, write the report.
+    ``engine`` (sbx or sb3) trains every run; None: the preset's engine where it has the algorithm.
 
     Holds ``out``'s exclusive lock throughout (a second compare on it is refused, naming the
     first). Runs that cannot be used (failed, damaged) are left out of the tables, named in the
@@ -138,7 +140,7 @@ def compare(specs: Sequence[str], *, tasks: Optional[Sequence[str]] = None,
             Interrupts(raise_outside=True):
         try:
             return _compare(specs, tasks, rewards, algos, seeds, steps, preset, workers, ray, out_dir, episodes,
-                            on_event, oracle_workers, ray_timeout, start, phase, results)
+                            on_event, oracle_workers, ray_timeout, start, phase, results, engine)
         except KeyboardInterrupt:
             raise SweepInterrupted(results, phase[0]) from None
         except SweepInterrupted as err:
@@ -160,12 +162,12 @@ def column_labels(specs: Sequence[str]) -> dict[str, str]:
 
 
 def _compare(specs, tasks, rewards, algos, seeds, steps, preset, workers, ray, out_dir: Path, episodes, on_event,
-             oracle_workers, ray_timeout, start, phase: list, results: list) -> CompareResult:
+             oracle_workers, ray_timeout, start, phase: list, results: list, engine=None) -> CompareResult:
     import asap_dsl
 
     from ..oracle.cache import oracle_for
 
-    jobs = plan(specs, tasks, list(rewards), list(algos), seeds, preset, steps)
+    jobs = plan(specs, tasks, list(rewards), list(algos), seeds, preset, steps, engine)
     labels = column_labels(sorted({j.spec for j in jobs}))
     phase[0] = "training"
     results[:] = execute(jobs, str(out_dir / "runs"), workers=workers, ray_address=ray, on_event=on_event,

@@ -36,6 +36,7 @@ from typing import Callable, Optional, Sequence
 
 import numpy as np
 
+from asap_dsl.processes import pool_size
 from asap_dsl.sampling import EVAL_SEED, task_states
 from asap_dsl.stl import ir
 
@@ -165,7 +166,7 @@ def run(prog, task: Optional[str] = None, episodes: int = 1000, seed: int = EVAL
     else:
         used_seed = None
     states = np.asarray(states, float).reshape(-1, oracle.n)
-    workers = max(1, min(int(workers), len(states)))
+    workers = pool_size(max(1, min(int(workers), len(states))))
     if workers == 1:
         results = oracle.solve_many(states, progress=progress)
     else:
