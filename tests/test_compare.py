@@ -60,7 +60,7 @@ def test_compare_writes_the_report_and_reuses_finished_runs(tiny, tmp_path):
     for needle in ("## Table 1 — rewards", "ASAP-Phi (sac)", "ρ reward (sac)", "greedy look-ahead", "oracle ceiling",
                    "## ASAP gap", "## What was run", "plots/success_vs_tolerance.png", "oracle ("):
         assert needle in md, needle
-    for name in ("success_vs_tolerance", "steps_vs_oracle", "trajectories", "training_curves"):
+    for name in ("state_space", "success_vs_tolerance", "steps_vs_oracle", "trajectories", "training_curves"):
         assert (out / "plots" / f"{name}.png").read_bytes()[:4] == b"\x89PNG"
     html = (out / "report.html").read_text()
     assert "http://" not in html and "https://" not in html and "<link" not in html and "<script" not in html
@@ -137,8 +137,8 @@ def test_html_report_renders_in_headless_chromium_without_requests(tiny, tmp_pat
         page.screenshot(path=str(shot), full_page=True)
         browser.close()
     assert tables == ["table1", "gap", "runs"]
-    assert {i[0] for i in images} == {"plot-success_vs_tolerance", "plot-steps_vs_oracle", "plot-trajectories",
-                                      "plot-training_curves"}
+    assert {i[0] for i in images} == {"plot-state_space", "plot-success_vs_tolerance", "plot-steps_vs_oracle",
+                                      "plot-trajectories", "plot-training_curves"}
     assert all(complete and width > 100 for _, complete, width in images)
     assert [u for u in requests if not u.startswith("data:")] == [page_file.as_uri()]
     assert shot.stat().st_size > 20_000

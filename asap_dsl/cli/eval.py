@@ -1,5 +1,6 @@
-"""``asapc eval RUN [--episodes N] [--tolerances 30,25] [--seed S] [--format json]``: the success
-rates of a trained run beside the oracle's ceiling.
+"""``asapc eval RUN [--episodes N] [--tolerances 30,25] [--seed S] [--format json] [--plot [PATH]]``:
+the success rates of a trained run beside the oracle's ceiling, and with ``--plot`` a picture of
+example trajectories in the state space (:mod:`asap_dsl.backends.compare.phase_plots`).
 
 The numbers come from :func:`asap_dsl.backends.rl.evaluation.evaluate`; this module reads flags
 and prints. Exit status: 0 done, 1 a problem with the spec or the run directory, 2 a bad flag
@@ -13,6 +14,7 @@ import json
 import sys
 from typing import Optional, TextIO
 
+from ..runfiles import shown
 from ..runs import json_safe
 from ..sampling import EVAL_SEED
 from .args import InputError, UsageError, add_episodes, add_format, add_seed, add_workers, tolerances_list, workers
@@ -31,6 +33,9 @@ def fill_eval_subparser(subparsers) -> argparse.ArgumentParser:
     add_workers(p, "processes for the oracle")
     add_format(p)
     p.add_argument("--states", action="store_true", help="with --format json: every state's steps and end reason")
+    p.add_argument("--plot", nargs="?", const="", default=None, metavar="PATH",
+                   help="draw example trajectories in the state space beside the oracle's, as a PNG "
+                        "(default: RUN/plots/trajectories.png)")
     p.set_defaults(func=eval_command)
     return p
 
@@ -54,8 +59,23 @@ def eval_command(args: argparse.Namespace, out: Optional[TextIO] = None) -> int:
         raise InputError(str(e)) from None
     except ValueError as e:  # a tolerance beyond the deadline
         raise UsageError(str(e)) from None
+    plot, failed = None, None
+    if args.plot is not None:
+        from asap_dsl.backends.compare.phase_plots import plot_run
+
+        try:
+            plot = plot_run(args.run, args.plot or None, episodes=args.episodes, seed=args.seed, spec=args.spec)
+        except RunError as e:  # the evaluation is shown all the same, then the plot's sentence
+            failed = str(e)
     if args.format == "json":
-        out.write(json.dumps(json_safe(ev.to_dict(per_state=args.states)), indent=2, allow_nan=False) + "\n")
+        data = json_safe(ev.to_dict(per_state=args.states))
+        if plot is not None:
+            data["plot"] = str(plot)
+        out.write(json.dumps(data, indent=2, allow_nan=False) + "\n")
     else:
         out.write(ev.render() + "\n")
+        if plot is not None:
+            out.write(f"  plot: {shown(plot)}\n")
+    if failed is not None:
+        raise InputError(f"{failed} (the evaluation above was computed; no plot was written)")
     return 0

@@ -19,7 +19,7 @@ from asap_dsl.runfiles import lock_dir, shown, writing
 from asap_dsl.runs import RunError, atomic_write_json, json_safe, package_versions, spec_hash
 from asap_dsl.sampling import EVAL_SEED, task_states
 
-from . import plots
+from . import phase_plots, plots
 from .report import REWARD_NAMES, Column, Method, ReportData, unique, write
 from .sweep import Job, SweepInterrupted, execute, load_result, plan
 
@@ -84,30 +84,23 @@ def _run_evaluation(result: dict, episodes: int, oracle) -> dict:
     return ev
 
 
-def _examples(prog, task: str, result: dict, oracle, n: int = 4) -> Optional[dict]:
-    """Robustness of ``asap`` along ``n`` example episodes: the run's policy and the oracle's."""
-    from .controllers import OracleController
+def _examples(prog, task: str, result: dict, oracle, states: np.ndarray, title: str, n: int = 4) -> Optional[dict]:
+    """``n`` example episodes of the run's policy and of the oracle's replayed sequences from the
+    first ``n`` of the sweep's states (the oracle's own, so that its sequences are found): the
+    robustness of ``asap`` along them, and the paths in the state space (``phase``)."""
     from ..rl.evaluation import load_run
+    from .phase_plots import example
 
     loaded = load_run(result["run_dir"])
-    tm = prog.task(task).model
-    states = task_states(prog.system, tm, n, seed=EVAL_SEED)
     asap = prog.task(task).asap
+    j = result["job"]
+    label = f"{REWARD_NAMES.get(j['reward'], j['reward'])} ({j['algo']})"
+    phase, res, ores = example(prog, task, states[:n], loaded.controller(), oracle, title=title, label=label)
 
     def rho(res):
-        out = []
-        for i in range(len(states)):
-            tr = res.trajectories[i, : res.end_step[i] + 1]
-            out.append(asap.robustness(tr).tolist())
-        return out
+        return [asap.robustness(res.trajectories[i, : res.end_step[i] + 1]).tolist() for i in range(res.episodes)]
 
-    ev = Evaluator(prog, task, states)
-    policy = rho(ev.run(loaded.controller(), record=True))
-    orc = None
-    if oracle is not None:
-        orc = rho(ev.run(OracleController.from_cache(oracle, prog.system.n_action), record=True))
-    j = result["job"]
-    return {"policy": policy, "oracle": orc, "label": f"{REWARD_NAMES.get(j['reward'], j['reward'])} ({j['algo']})"}
+    return {"policy": rho(res), "oracle": None if ores is None else rho(ores), "label": label, "phase": phase}
 
 
 def compare(specs: Sequence[str], *, tasks: Optional[Sequence[str]] = None,
@@ -238,7 +231,8 @@ def _compare(specs, tasks, rewards, algos, seeds, steps, preset, workers, ray, o
                                                     f"s{j['seed']}", r["curves"]))
         first = [r for r in mine if r["job"]["algo"] == algos[0] and r["job"]["reward"] == rewards[0]]
         if first:
-            examples[col.name] = _examples(prog, job.task, sorted(first, key=lambda r: r["job"]["seed"])[0], oracle)
+            examples[col.name] = _examples(prog, job.task, sorted(first, key=lambda r: r["job"]["seed"])[0], oracle,
+                                           states, col.name)
 
     t1 = list(table1.values()) + [greedy]
     t2 = list(table2.values()) if len(algos) > 1 else []
@@ -250,6 +244,7 @@ def _compare(specs, tasks, rewards, algos, seeds, steps, preset, workers, ray, o
     data = ReportData(title="ASAP-Phi comparison: " + ", ".join(sorted(set(labels.values()))),
                       columns=columns, table1=t1, table2=t2, runs=runs, notes=notes, versions=package_versions())
     figures = {
+        "state_space": phase_plots.state_space([ex["phase"] for ex in examples.values()]),
         "success_vs_tolerance": plots.success_vs_tolerance(columns, unique(t1 + t2) + [replay]),
         "steps_vs_oracle": plots.steps_vs_oracle(columns, t1[0]),
         "trajectories": plots.trajectories(columns, examples),

@@ -9,15 +9,21 @@ from typing import Optional
 
 import numpy as np
 
-__all__ = ["steps_vs_oracle", "success_vs_tolerance", "training_curves", "trajectories"]
+__all__ = ["pyplot", "steps_vs_oracle", "success_vs_tolerance", "training_curves", "trajectories"]
 
 
-def _figure(n: int, height: float = 3.2, rows_of: int = 1):
+def pyplot():
+    """``matplotlib.pyplot`` on the Agg backend (no display needed)."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
+    return plt
+
+
+def _figure(n: int, height: float = 3.2, rows_of: int = 1):
+    plt = pyplot()
     ncols = min(n, 4)
     nrows = math.ceil(n / ncols) * rows_of
     fig, axes = plt.subplots(nrows, ncols, figsize=(4.2 * ncols, height * nrows), squeeze=False)

@@ -159,6 +159,7 @@ def _bounds(columns: list[Column]) -> str:
 
 
 PLOT_TITLES = {
+    "state_space": "Example trajectories in the state space: the policy (solid) beside the oracle (dashed)",
     "success_vs_tolerance": "Success rate against tolerance, beside the oracle's ceiling",
     "steps_vs_oracle": "Each state's steps to reach against the oracle's minimum",
     "trajectories": "Example trajectories beside the oracle's (robustness of asap over time)",
