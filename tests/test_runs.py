@@ -15,20 +15,10 @@ from pathlib import Path
 import pytest
 
 import asap_dsl
-from asap_dsl import cli
 from asap_dsl.runs import RunDir, RunError, command_line, shell_quote
-from conftest import RAIL
+from conftest import RAIL, asapc
 
 FAST = {"net_arch": [16, 16], "learning_starts": 64, "batch_size": 32}
-
-
-def _cli(capsys, *argv):
-    try:
-        code = cli.main([str(a) for a in argv])
-    except SystemExit as e:
-        code = e.code
-    out, err = capsys.readouterr()
-    return code, out, err
 
 
 def _one_sentence(err: str, *words: str) -> str:
@@ -68,29 +58,29 @@ def test_force_replaces_only_a_run(base, run, tmp_path, capsys):
     precious = tmp_path / "precious"
     (precious / "sub").mkdir(parents=True)
     (precious / "thesis.txt").write_text("x")
-    code, _, err = _cli(capsys, "train", spec, "--out", precious, "--force", "--steps", 100, "--quiet")
+    code, _, err = asapc(capsys, "train", spec, "--out", precious, "--force", "--steps", 100, "--quiet")
     assert code == 1
     _one_sentence(err, "not a run", "never replaces it")
     assert (precious / "thesis.txt").read_text() == "x" and (precious / "sub").is_dir()
 
     afile = tmp_path / "afile"
     afile.write_text("y")
-    code, _, err = _cli(capsys, "train", spec, "--out", afile, "--force", "--steps", 100, "--quiet")
+    code, _, err = asapc(capsys, "train", spec, "--out", afile, "--force", "--steps", 100, "--quiet")
     assert code == 1 and afile.read_text() == "y"
     _one_sentence(err, "is a file")
 
     (run / "notes.txt").write_text("mine")  # a run with the user's file in it is not only a run
-    code, _, err = _cli(capsys, "train", spec, "--out", run, "--force", "--steps", 100, "--quiet")
+    code, _, err = asapc(capsys, "train", spec, "--out", run, "--force", "--steps", 100, "--quiet")
     assert code == 1 and (run / "notes.txt").exists()
     _one_sentence(err, "notes.txt", "never replaces it")
     (run / "notes.txt").unlink()
 
-    code, _, err = _cli(capsys, "train", spec, "--out", run, "--steps", 100, "--quiet")  # no --force
+    code, _, err = asapc(capsys, "train", spec, "--out", run, "--steps", 100, "--quiet")  # no --force
     line = _one_sentence(err, "already holds a run", "--resume`", "--force")
     assert "--force`" not in line  # it says how to go on, not to destroy
 
     before = RunDir(run).read_manifest()
-    code, _, err = _cli(capsys, "train", spec, "--out", run, "--force", "--steps", 100, "--quiet", "--no-eval",
+    code, _, err = asapc(capsys, "train", spec, "--out", run, "--force", "--steps", 100, "--quiet", "--no-eval",
                         "--engine", "sb3")
     assert code == 0, err
     after = RunDir(run).read_manifest()
@@ -142,18 +132,18 @@ def test_a_damaged_run_is_one_sentence(base, run, capsys, case):
     spec, _ = base
     damage, words = DAMAGE[case]
     damage(run)
-    code, _, err = _cli(capsys, "train", spec, "--out", run, "--resume", "--steps", 300, "--quiet", "--no-eval")
+    code, _, err = asapc(capsys, "train", spec, "--out", run, "--resume", "--steps", 300, "--quiet", "--no-eval")
     assert code == 1, err
     _one_sentence(err, words)
 
 
 def test_a_model_swapped_in_or_deleted_is_refused(base, run, capsys):
     shutil.copy(run / "checkpoint" / "model.zip", run / "model.zip")  # a real model, not this run's best
-    code, _, err = _cli(capsys, "eval", run, "--no-oracle", "--episodes", 10)
+    code, _, err = asapc(capsys, "eval", run, "--no-oracle", "--episodes", 10)
     assert code == 1
     _one_sentence(err, "model.zip: not the model this run wrote", "refused")
     (run / "model.zip").unlink()
-    code, _, err = _cli(capsys, "eval", run, "--no-oracle", "--episodes", 10)
+    code, _, err = asapc(capsys, "eval", run, "--no-oracle", "--episodes", 10)
     assert code == 1
     _one_sentence(err, "model.zip: not the model this run wrote (it is missing)")
 
@@ -218,7 +208,7 @@ def test_an_unwritable_curves_file_during_resume(base, run, capsys):
     spec, _ = base
     (run / "curves.csv").unlink()
     (run / "curves.csv").mkdir()  # as root, a directory in its place is what refuses the rename
-    code, _, err = _cli(capsys, "train", spec, "--out", run, "--resume", "--steps", 260, "--quiet", "--no-eval")
+    code, _, err = asapc(capsys, "train", spec, "--out", run, "--resume", "--steps", 260, "--quiet", "--no-eval")
     assert code == 1
     _one_sentence(err, "cannot write", "curves.csv", "is intact", "--resume`")
     assert RunDir(run).checkpoint() is not None and RunDir(run).read_manifest()["status"] == "failed"
@@ -228,13 +218,13 @@ def test_an_unwritable_curves_file_during_resume(base, run, capsys):
 def test_sizes_beyond_the_machine_are_usage_errors(base, run, tmp_path, capsys, monkeypatch):
     spec, _ = base
     out = tmp_path / "huge"
-    code, _, err = _cli(capsys, "train", spec, "--envs", 100_000_000, "--out", out, "--quiet")
+    code, _, err = asapc(capsys, "train", spec, "--envs", 100_000_000, "--out", out, "--quiet")
     assert code == 2 and not out.exists()
     assert "--envs 100,000,000 needs about" in err and "Traceback" not in err
-    code, _, err = _cli(capsys, "eval", run, "--workers", 1000)
+    code, _, err = asapc(capsys, "eval", run, "--workers", 1000)
     assert code == 2 and "--force-workers" in err
     monkeypatch.setattr("asap_dsl.limits.available_memory", lambda: 64 * 1024 * 1024)
-    code, _, err = _cli(capsys, "eval", run, "--episodes", 1_000_000, "--no-oracle")
+    code, _, err = asapc(capsys, "eval", run, "--episodes", 1_000_000, "--no-oracle")
     assert code == 2 and "--episodes 1,000,000 needs about" in err
 
 
@@ -258,11 +248,11 @@ def test_paths_are_stored_absolute_and_messages_escaped(base, tmp_path, capsys, 
     asap_dsl.train("rail.asap", steps=100, n_envs=2, out=out, settings=FAST, evaluate=False, engine="sb3")
     m = RunDir(out).read_manifest()
     assert m["spec_file"] == str(work / "rail.asap")
-    code, _, err = _cli(capsys, "train", "rail.asap", "--out", out, "--steps", 100, "--quiet")
+    code, _, err = asapc(capsys, "train", "rail.asap", "--out", out, "--steps", 100, "--quiet")
     _one_sentence(err, "already holds a run", r"odd\x1bname")  # escaped, never raw
     monkeypatch.chdir(tmp_path)  # elsewhere, the changed-spec check still finds the file
     (work / "rail.asap").write_text(RAIL + "\n# edited\n")
-    code, _, err = _cli(capsys, "eval", out, "--no-oracle", "--episodes", 10)
+    code, _, err = asapc(capsys, "eval", out, "--no-oracle", "--episodes", 10)
     assert code == 1
     _one_sentence(err, "has changed since", "--spec")
 
