@@ -24,7 +24,8 @@ import numpy as np
 
 import asap_dsl
 from asap_dsl.backends.oracle.planner import PlannerBudget
-from asap_dsl.backends.oracle.planning import plan_states, tighten_planned
+from asap_dsl.backends.oracle.planning import plan_states, shortest_sequences, tighten_planned
+from asap_dsl.stl import ir
 from asap_dsl.backends.oracle.solver import run
 
 SPECS = Path(__file__).resolve().parents[1] / "specs"
@@ -74,7 +75,17 @@ def swimmer(states: int, workers: int, budget: PlannerBudget) -> None:
     reports = []
     for task in prog.tasks:
         t1 = time.perf_counter()
-        reports.append(plan_states(prog, task, episodes=states, workers=workers, budget=budget))
+        asap = ir.to_text(prog.task(task).model.asap)  # as asapc oracle: a task before with this asap hands over
+        warm = [w for r in reports if ir.to_text(prog.task(r.task).model.asap) == asap
+                for w in shortest_sequences(r.results, budget.exchange)]
+        done = [0]
+
+        def progress(k: int, task=task, t1=t1) -> None:
+            done[0] += k
+            print(f"  {task}: {done[0]}/{states} states planned, {time.perf_counter() - t1:.0f} s", flush=True)
+
+        reports.append(plan_states(prog, task, episodes=states, workers=workers, budget=budget, warm=warm,
+                                   progress=progress))
         print(f"{task}: {time.perf_counter() - t1:.1f} s, pilot {reports[-1].extra['planner']['pilot_run']['steps']} "
               f"steps in {reports[-1].extra['planner']['pilot_run']['seconds']:.1f} s", flush=True)
     tighten_planned(prog, reports)

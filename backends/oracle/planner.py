@@ -262,26 +262,32 @@ class Planner:
                        source="another state", rollouts=base.rollouts + len(pool),
                        seconds=base.seconds + time.perf_counter() - start)
 
-    def descend(self, x0: np.ndarray, z0: np.ndarray, iterations: int = 60) -> tuple[float, Optional[np.ndarray], int]:
-        """A local search from the knots ``z0``: L-BFGS-B on the terminal cost, its gradient from
-        central differences of all knots at once (one batch of ``2 knots m + 1`` rollouts). For
-        the pilot, when sampling around "do nothing" finds no way (moving first takes the
-        swimmer away from its goal). Returns ``(steps, knots, rollouts)`` of the first candidate
-        that reached (``inf, None`` if none)."""
+    def descend(self, x0: np.ndarray, z0: np.ndarray, iterations: int = 60,
+                horizon: Optional[int] = None) -> tuple[float, Optional[np.ndarray], int]:
+        """A local search from the knots ``z0``: L-BFGS-B on the terminal cost at ``horizon``
+        (default the deadline), its gradient from central differences of the knots before it all
+        at once (one batch of ``2 knots m + 1`` rollouts). For the pilot, when sampling around
+        "do nothing" finds no way (moving first takes the swimmer away from its goal), and to
+        shorten what it found. Returns ``(steps, knots, rollouts)`` of the first candidate that
+        reached within ``horizon`` (``inf, None`` if none)."""
         import scipy.optimize
 
-        D = self.knots * self.m
+        h = self.deadline if horizon is None else max(1, min(int(horizon), self.deadline))
+        live = min(self.knots, -(-h // self.budget.hold))  # the knots that act before the horizon
+        D = live * self.m
         if 2 * D + 1 > self.K:
             return math.inf, None, 0
         eps = 1e-3
+        z0 = np.clip(np.asarray(z0, float).reshape(self.knots, self.m), -1, 1)
         found: list = [math.inf, None]
         used = [0]
         basis = np.eye(D)
 
         def f_and_g(flat: np.ndarray):
-            zs = np.concatenate([flat[None], flat[None] + eps * basis, flat[None] - eps * basis]).reshape(-1, self.knots,
-                                                                                                          self.m)
-            t_reach, cost = self.evaluate(x0, zs, self.deadline, terminal=True)
+            head = np.concatenate([flat[None], flat[None] + eps * basis, flat[None] - eps * basis])
+            zs = np.repeat(z0[None], len(head), axis=0)
+            zs[:, :live] = head.reshape(-1, live, self.m)
+            t_reach, cost = self.evaluate(x0, zs, h, terminal=True)
             used[0] += len(zs)
             k = int(np.argmin(t_reach))
             if t_reach[k] < found[0]:
@@ -292,11 +298,35 @@ class Planner:
             return float(cost[0]), g
 
         try:
-            scipy.optimize.minimize(f_and_g, np.clip(np.asarray(z0, float).ravel(), -1, 1), jac=True, method="L-BFGS-B",
+            scipy.optimize.minimize(f_and_g, z0[:live].ravel(), jac=True, method="L-BFGS-B",
                                     bounds=[(-1.0, 1.0)] * D, options={"maxiter": int(iterations)})
         except StopIteration:
             pass
         return found[0], found[1], used[0]
+
+    def shorten(self, x0: np.ndarray, actions: np.ndarray, deadline: float,
+                iterations: int = 60) -> tuple[list[np.ndarray], int]:
+        """Shorter and shorter sequences from ``x0``, starting from ``actions`` (which reaches
+        in ``len(actions)`` steps): the sequence compressed in time to a tenth fewer steps (a
+        faster stroke is the natural guess for arriving sooner), then :meth:`descend` at that
+        horizon; a step at a time once a tenth fails, until one step fewer fails or the clock
+        (``deadline``, :func:`time.perf_counter`) runs out. Returns the sequences found,
+        longest first, and the rollouts spent."""
+        out, used = [np.asarray(actions, float).reshape(-1, self.m)], 0
+        cut = max(1, len(out[0]) // 10)
+        while len(out[-1]) > 1 and time.perf_counter() < deadline:
+            cur = out[-1]
+            h = max(1, len(cur) - cut)
+            squeezed = cur[np.floor(np.arange(h) * len(cur) / h).astype(int)]
+            t, z, spent = self.descend(x0, self._to_knots(squeezed), iterations, horizon=h)
+            used += spent
+            if z is not None:
+                out.append(self.actions(z[None])[0, : int(t)])
+            elif cut > 1:
+                cut = 1
+            else:
+                break
+        return out, used
 
     def cost(self, t_reach: np.ndarray, rho: np.ndarray, failed: np.ndarray, terminal: bool) -> np.ndarray:
         """A candidate's cost (module docstring): its first hitting step where it reaches, else
@@ -318,13 +348,41 @@ class Planner:
         return np.where(np.isfinite(c), c, 1e6 * W)
 
     # ------------------------------------------------------------------ search
+    def periodic(self, rng: np.random.Generator, count: int) -> np.ndarray:
+        """``count`` periodic candidates (knots ``[count, knots, m]``, normalised units): one
+        period per candidate (log-uniform from two knots to twice the deadline, so that the
+        actions are coordinated), per action a phase, an amplitude and an offset, a sine or a
+        square wave (bang-bang at full amplitude), and a step after which the actions rest at the
+        centre of the box (a stroke, then a glide). Locomotion needs such coordinated periodic
+        actions, which Gaussian noise around "do nothing" almost never produces."""
+        m, n = self.m, int(count)
+        knots = np.arange(self.knots)[None, :, None]
+        period = np.exp(rng.uniform(math.log(2.0), math.log(2.0 * self.knots), (n, 1, 1)))
+        phase = rng.uniform(0.0, 2 * math.pi, (n, 1, m))
+        amp = rng.uniform(0.0, 1.0, (n, 1, m))
+        offset = rng.uniform(-1.0, 1.0, (n, 1, m)) * (1.0 - amp)
+        wave = np.sin(2 * math.pi * knots / period + phase)
+        wave = np.where(rng.random((n, 1, 1)) < 0.5, np.sign(wave), wave)
+        until = rng.integers(1, self.knots + 1, (n, 1, 1))
+        return np.where(knots < until, np.clip(offset + amp * wave, -1.0, 1.0), 0.0)
+
+    def ranked_periodic(self, x0: np.ndarray, rng: np.random.Generator, batches: int) -> tuple[np.ndarray, int]:
+        """``batches`` batches of :meth:`periodic` candidates rolled out from ``x0``, cheapest
+        first (terminal cost: reaching ones first, by their steps), and the rollouts spent."""
+        z = self.periodic(rng, self.K * max(1, int(batches)))
+        cost = np.concatenate([self.evaluate(x0, z[at: at + self.K], self.deadline, terminal=True)[1]
+                               for at in range(0, len(z), self.K)])
+        return z[np.argsort(cost, kind="stable")], len(z)
+
     def _fixed(self, warm: Sequence[np.ndarray]) -> np.ndarray:
         """Candidates of the first population: constant actions at the centre and the corners of
-        the action box (bang-bang), and the warm starts given (as knots)."""
+        the action box (bang-bang), and the warm starts given (as knots), each with its last
+        action held after its end and at rest there (a stroke that ends in a glide)."""
         m = self.m
         corners = np.array(np.meshgrid(*[[-1.0, 1.0]] * m, indexing="ij")).reshape(m, -1).T
         fixed = [np.zeros((1, m))] + [c[None, :] for c in corners[: max(0, self.K // 8 - 1)]]
-        z = [np.broadcast_to(f, (self.knots, m))[None] for f in fixed] + [self._to_knots(w)[None] for w in warm]
+        z = [np.broadcast_to(f, (self.knots, m))[None] for f in fixed]
+        z += [self._to_knots(w, rest)[None] for w in warm for rest in (False, True)]
         return np.concatenate(z)[: self.K // 2]
 
     def _population(self, kept: np.ndarray, mu: np.ndarray, sigma: np.ndarray,
@@ -340,12 +398,15 @@ class Planner:
         d = ((kept[:, None] - mu[None]) ** 2).sum(axis=(2, 3))
         return z, np.concatenate([np.argmin(d, axis=1), fresh_island])
 
-    def _to_knots(self, actions: np.ndarray) -> np.ndarray:
-        """An action sequence (any length) as knots in normalised units, the last action held."""
+    def _to_knots(self, actions: np.ndarray, rest: bool = False) -> np.ndarray:
+        """An action sequence (any length) as knots in normalised units, the last action held
+        after its end (``rest``: the centre of the action box instead)."""
         a = np.asarray(actions, dtype=np.float64).reshape(-1, self.m)
+        centre = np.zeros((1, self.m)) + (self.low + self.high) / 2
         if len(a) == 0:
-            a = np.zeros((1, self.m)) + (self.low + self.high) / 2
-        full = np.concatenate([a, np.repeat(a[-1:], max(0, self.deadline - len(a)), axis=0)])[: self.deadline]
+            a = centre
+        tail = centre if rest else a[-1:]
+        full = np.concatenate([a, np.repeat(tail, max(0, self.deadline - len(a)), axis=0)])[: self.deadline]
         z = 2.0 * (full - self.low) / np.where(self.high > self.low, self.high - self.low, 1.0) - 1.0
         return z[:: self.budget.hold][: self.knots]
 
@@ -362,7 +423,7 @@ class Planner:
         return np.stack([np.concatenate([z[:j], z[j + 1:], z[-1:]]) for j in js])
 
     def plan(self, x0: Sequence[float], index: int = 0, warm: Sequence[np.ndarray] = (),
-             iterations: Optional[int] = None, islands: int = 1) -> "PlannedState":
+             iterations: Optional[int] = None, islands: int = 1, starts: Optional[np.ndarray] = None) -> "PlannedState":
         """The fewest steps found from ``x0`` (the planner's sequence, not yet replayed).
 
         ``warm``: action sequences to try first (another state's, for instance); ``iterations``:
@@ -380,9 +441,14 @@ class Planner:
         K, shape = self.K, (self.knots, self.m)
         # exploration: islands, one at the centre of the action box, the others at random sequences
         R = max(1, min(int(islands), K // 8))
-        mu = np.concatenate([np.zeros((1,) + shape), rng.uniform(-1, 1, (R - 1,) + shape)])
+        others = rng.uniform(-1, 1, (R - 1,) + shape)
+        if starts is not None and len(starts):
+            k = min(R - 1, len(starts))
+            others[:k] = np.asarray(starts, float)[:k]
+        mu = np.concatenate([np.zeros((1,) + shape), others])
         sigma = np.full((R,) + shape, b.sigma)
-        z, island = self._population(self._fixed(warm), mu, sigma, rng)
+        first = np.concatenate([self._fixed(warm), self.periodic(rng, K // 4)])[: K // 2]
+        z, island = self._population(first, mu, sigma, rng)
         best_t, best_z = math.inf, None
         rollouts = iters = 0
         timed_out = False

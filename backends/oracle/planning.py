@@ -32,6 +32,7 @@ from typing import Callable, Optional, Sequence
 
 import numpy as np
 
+from asap_dsl.processes import pool_size
 from asap_dsl.rollout import Evaluator
 from asap_dsl.sampling import EVAL_SEED, task_states
 from asap_dsl.stl import ir
@@ -115,7 +116,7 @@ def _threads_for_workers() -> None:
 def _map(payloads: list, workers: int, progress: Optional[Callable[[int], None]]) -> list[PlannedState]:
     """Run the chunks (in ``workers`` processes when more than one); results by index."""
     parts: list = []
-    if workers == 1:
+    if pool_size(workers) == 1:
         for p in payloads:
             parts.append(_plan_chunk(p))
             if progress is not None:
@@ -167,10 +168,9 @@ def plan_states(prog, task: Optional[str] = None, episodes: int = 1000, seed: in
         used_seed = None
     states = np.asarray(states, float).reshape(-1, planner.n)
     workers = max(1, min(int(workers), len(states)))
-    pilot = _pilot(prog, planner, budget, time_limit, seed, warm)
-    warm = ([pilot.actions] if pilot.steps is not None and pilot.actions is not None and len(pilot.actions) else []) \
-        + [np.asarray(w, float) for w in warm]
-    n_chunks = min(len(states), 8 * workers) if workers > 1 else 1
+    pilot, found = _pilot(prog, planner, budget, time_limit, seed, warm)
+    warm = found + [np.asarray(w, float) for w in warm]
+    n_chunks = min(len(states), 8 * workers)  # in one process too: progress after each chunk
     chunks = [c for c in np.array_split(np.arange(len(states)), n_chunks) if len(c)]
     common = (prog.source, prog.file, planner.task_name, budget, time_limit, seed)
     planned = _map([common + (states[c], [int(i) for i in c], warm, None, None) for c in chunks], workers, progress)
@@ -198,34 +198,47 @@ def plan_states(prog, task: Optional[str] = None, episodes: int = 1000, seed: in
 
 
 def _pilot(prog, planner: Planner, budget: PlannerBudget, time_limit: float, seed: int,
-           warm: Sequence[np.ndarray] = ()) -> PlannedState:
-    """The centre of the task's initial box, planned with the pilot's larger budget."""
+           warm: Sequence[np.ndarray] = ()) -> tuple[PlannedState, list[np.ndarray]]:
+    """The centre of the task's initial box, planned with the pilot's larger budget: the state
+    and the sequences found on the way, shortest first (every state's warm starts: a longer one
+    may reach from a state the shortest does not)."""
     from asap_dsl.sampling import init_box
 
     lo, hi = init_box(prog.system, planner.task.model.init_box)
     centre = np.where(np.isfinite(lo) & np.isfinite(hi), (lo + hi) / 2, 0.0)
     if budget.pilot < 1:
-        return PlannedState(-1, centre, None, "not_found", False)
+        return PlannedState(-1, centre, None, "not_found", False), []
     coarse = replace(budget, hold=max(budget.hold, budget.pilot_hold))
     pilot = Planner(prog, planner.task_name, coarse, time_limit * budget.pilot, seed)
     start = time.perf_counter()
-    r = pilot.plan(centre, -1, warm=warm, iterations=budget.iterations * budget.pilot)
-    if r.steps is not None:
-        return r
-    # nothing around "do nothing": local searches from random sequences until one reaches
-    rng = np.random.default_rng([seed, 17])
+    until = start + time_limit * budget.pilot
+    r = pilot.plan(centre, -1, warm=warm)
     spent = r.rollouts
-    for _ in range(budget.islands):
-        if time.perf_counter() - start > time_limit * budget.pilot:
-            break
-        t, z, used = pilot.descend(centre, rng.uniform(-1, 1, (pilot.knots, pilot.m)))
+    if r.steps is None:
+        # nothing around "do nothing": local searches from the most promising periodic
+        # sequences (strokes, then a glide) until one reaches
+        rng = np.random.default_rng([seed, 17])
+        starts, used = pilot.ranked_periodic(centre, rng, budget.islands)
         spent += used
-        if z is not None:
-            r = pilot.plan(centre, -1, warm=[pilot.actions(z[None])[0, : int(t)]],
-                           iterations=budget.iterations * budget.pilot)
-            spent += r.rollouts
-            break
-    return replace(r, rollouts=spent, seconds=time.perf_counter() - start)
+        for z0 in starts[: budget.islands]:
+            if time.perf_counter() > until:
+                break
+            t, z, used = pilot.descend(centre, z0)
+            spent += used
+            if z is not None:
+                r = replace(r, steps=int(t), status="solved", actions=pilot.actions(z[None])[0, : int(t)])
+                break
+    if r.steps is None:
+        return replace(r, rollouts=spent, seconds=time.perf_counter() - start), []
+    r2 = pilot.plan(centre, -1, warm=[r.actions], iterations=budget.iterations * (budget.pilot - 1) or 1)
+    spent += r2.rollouts
+    if r2.steps is not None and r2.steps < r.steps:
+        r = r2
+    found, used = pilot.shorten(centre, r.actions, until)
+    spent += used
+    r = replace(r, steps=len(found[-1]), actions=found[-1], status="solved")
+    sequences = [a for a in reversed(found) if len(a)]
+    return replace(r, rollouts=spent, seconds=time.perf_counter() - start), sequences
 
 
 def shortest_sequences(results: Sequence[PlannedState], size: int) -> list[np.ndarray]:
