@@ -7,6 +7,7 @@ from __future__ import annotations
 import io
 import json
 import math
+import time
 from pathlib import Path
 
 import numpy as np
@@ -128,3 +129,14 @@ def test_oracle_command_plans_a_black_box_and_stores_it_for_eval(user_sims, tmp_
     args = build_parser().parse_args(["oracle", str(spec), "--episodes", "3", "--samples", "16", "--iterations", "4"])
     args.func(args, out=text, err=io.StringIO())
     assert "planner (achievable)" in text.getvalue() and "lower bound on the ceiling" in text.getvalue()
+
+
+def test_the_pilots_shortening_finds_the_rails_minimum_from_a_slow_sequence():
+    """A slow sequence (u = 0.3: 14 steps from x = 0) is shortened to the rail's minimum (4 steps
+    of full speed), and every sequence on the way reaches where it says (replayed)."""
+    prog = asap_dsl.loads(RAIL, "rail.asap")
+    planner = Planner(prog, "go", PlannerBudget(samples=64))
+    found, used = planner.shorten(np.zeros(1), np.full((14, 1), 0.3), time.perf_counter() + 30)
+    assert len(found[0]) == 14 and len(found[-1]) == rail_minimum(0.0) and used > 0
+    claims = [PlannedState(i, np.zeros(1), len(a), "solved", False, actions=a) for i, a in enumerate(found)]
+    assert [(r.steps, r.verified) for r in replay_counted(prog, "go", claims)] == [(len(a), True) for a in found]

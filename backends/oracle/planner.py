@@ -10,10 +10,13 @@ once more before it counts. A found sequence's steps are an upper bound on that 
 so the share of states within a tolerance is a **lower bound on the ceiling**: the label is
 ``planner (achievable)``.
 
-The search (measured against MPPI and predictive sampling in docs/oracle.md, "The planner"):
-cross-entropy over piecewise-constant action sequences — ``knots`` values per action held for
-``hold`` steps each, in the action box's normalised units — with a Gaussian per knot, clipped to
-the box (so bang-bang actions, which minimum time often needs, have mass). Each iteration rolls
+The search (docs/oracle.md, "The planner"): predictive sampling by default (cross-entropy and
+MPPI as the other update rules) over piecewise-constant action sequences — ``knots`` values per
+action held for ``hold`` steps each, in the action box's normalised units — with a Gaussian per
+knot, clipped to the box (so bang-bang actions, which minimum time often needs, have mass). The
+first population also holds constant actions (the centre and corners of the box), the warm
+starts, and periodic sequences (:meth:`Planner.periodic`: locomotion needs coordinated periodic
+actions, which noise around "do nothing" almost never produces). Each iteration rolls
 ``samples`` candidates out as one batch; the cost of a candidate is a soft first hitting time,
 
     cost = min over steps t before any failure of  t + D * v_t / v_0,
@@ -423,7 +426,7 @@ class Planner:
         return np.stack([np.concatenate([z[:j], z[j + 1:], z[-1:]]) for j in js])
 
     def plan(self, x0: Sequence[float], index: int = 0, warm: Sequence[np.ndarray] = (),
-             iterations: Optional[int] = None, islands: int = 1, starts: Optional[np.ndarray] = None) -> "PlannedState":
+             iterations: Optional[int] = None, islands: int = 1) -> "PlannedState":
         """The fewest steps found from ``x0`` (the planner's sequence, not yet replayed).
 
         ``warm``: action sequences to try first (another state's, for instance); ``iterations``:
@@ -441,11 +444,7 @@ class Planner:
         K, shape = self.K, (self.knots, self.m)
         # exploration: islands, one at the centre of the action box, the others at random sequences
         R = max(1, min(int(islands), K // 8))
-        others = rng.uniform(-1, 1, (R - 1,) + shape)
-        if starts is not None and len(starts):
-            k = min(R - 1, len(starts))
-            others[:k] = np.asarray(starts, float)[:k]
-        mu = np.concatenate([np.zeros((1,) + shape), others])
+        mu = np.concatenate([np.zeros((1,) + shape), rng.uniform(-1, 1, (R - 1,) + shape)])
         sigma = np.full((R,) + shape, b.sigma)
         first = np.concatenate([self._fixed(warm), self.periodic(rng, K // 4)])[: K // 2]
         z, island = self._population(first, mu, sigma, rng)

@@ -10,10 +10,15 @@ minimum, so each rate is a lower bound on the ceiling.
 
 The steps, all deterministic (a state's random numbers are seeded by the seed and the state):
 
-1. **pilot**: the centre of the task's initial box is planned with ``pilot`` times the iterations,
-   several populations side by side and coarser knots (``pilot_hold``): on dynamics where moving
-   first takes the system away from the goal (the swimmer), searching from "do nothing" alone
-   finds nothing. Its sequence is every state's first warm start.
+1. **pilot**: the centre of the task's initial box is planned with coarser knots (``pilot_hold``)
+   and ``pilot`` times the iterations. Where sampling finds nothing (on dynamics where moving
+   first takes the system away from the goal, as the swimmer's every stroke does),
+   finite-difference descents start from the most promising periodic sequences
+   (:meth:`~asap_dsl.backends.oracle.planner.Planner.periodic`) until one reaches. What it found
+   is then shortened (:meth:`~asap_dsl.backends.oracle.planner.Planner.shorten`: compressed in
+   time, descended at the shorter horizon) within ``pilot`` times the per-state time limit.
+   Every sequence on the way is a warm start of every state (a longer one may reach from a
+   state where the shortest does not).
 2. **states**: each state is planned with the budget, warm-started from the pilot.
 3. **exchange**: the shortest sequences found (``exchange``, from different states) are tried
    from every state, and the shortest passing one is kept (states close together share a plan).
