@@ -94,10 +94,10 @@ def test_demonstration_states_are_not_evaluation_or_validation_states(rail):
 def test_who_gets_demonstrations(rail):
     from asap_dsl.backends.rl.config import ConfigError, resolve_config
 
-    assert resolve_config(rail).demonstrations == 64  # the default preset, SAC, known dynamics
+    assert resolve_config(rail).demonstrations == 0  # measured: none by default (docs/training.md)
     assert resolve_config(rail, preset="paper").demonstrations == 0
-    assert resolve_config(rail, algo="ppo").demonstrations == 0  # no replay buffer: none, silently
-    assert resolve_config(rail, demonstrations=0).demonstrations == 0
+    assert resolve_config(rail, demonstrations=12).demonstrations == 12
+    assert resolve_config(rail, algo="td3", demonstrations=12, preset="paper").demonstrations == 12
     with pytest.raises(ConfigError, match="ppo has no replay buffer"):
         resolve_config(rail, algo="ppo", demonstrations=8)
     with pytest.raises(ConfigError, match="0 or more"):
@@ -114,7 +114,7 @@ def test_zero_adds_none_and_a_resume_does_not_add_them_again(rail, tmp_path, cap
             return int(pickle.load(f).pos)
 
     code, _, err = asapc(capsys, *base, "--demonstrations", 0, "--out", tmp_path / "off")
-    assert code == 0 and "demonstrations: none (0 asked for)" in err
+    assert code == 0 and "demonstrations" not in err
     assert RunDir(tmp_path / "off").read_manifest()["config"]["demonstrations"] == 0
     assert buffer_pos(tmp_path / "off") == 40 // 2  # the run's own steps only
 

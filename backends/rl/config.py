@@ -118,8 +118,8 @@ def resolve_config(prog, task: Optional[str] = None, *, algo: Optional[str] = No
     ``settings`` are hyperparameters by their ``train { ... }`` names (they override the block
     and the preset). ``engine``: ``sbx`` or ``sb3`` (default: the preset's where it has the
     algorithm). ``demonstrations``: initial states whose oracle sequences go into the replay
-    buffer before learning (default: the preset's, where the algorithm has a replay buffer and the
-    dynamics are known; 0 turns them off). Raises :class:`ConfigError` (one sentence) or
+    buffer before learning (default: the preset's, none in both, where the algorithm has a replay
+    buffer and the dynamics are known; 0: none). Raises :class:`ConfigError` (one sentence) or
     ``KeyError`` (unknown task).
     """
     t = prog.task(task).model  # KeyError with a suggestion on an unknown task

@@ -31,7 +31,7 @@ from asap_dsl.runs import (Checkpoint, RunDir, RunError, check_target, checkpoin
 from asap_dsl.sampling import task_states
 
 from .config import ConfigError, TrainConfig, resolve_config
-from .presets import OFF_POLICY
+from .presets import OFF_POLICY, get_preset
 from .engines import Engine, get_engine
 from .sb3 import PolicyController, Scaling, ScaledVecEnv
 
@@ -209,7 +209,8 @@ class _Session:
 
         if self.cfg.demonstrations <= 0:
             why = unavailable(self.prog, self.cfg.algo)
-            self._tell(f"demonstrations: none ({why or '0 asked for'})")
+            if why and get_preset(self.cfg.preset).demonstrations > 0:  # the preset's, withheld: say why
+                self._tell(f"demonstrations: none ({why})")
             return None
 
         def check_stop() -> None:
@@ -227,6 +228,9 @@ class _Session:
                                    reward=self.cfg.reward)
         self.seconds_before += demos.seconds
         self.started = time.perf_counter()  # what came before is counted in the line above
+        if self.cfg.time_limit is not None:  # validations on the clock: spread over the time left
+            left = max(0.0, self.cfg.time_limit - self.seconds_before)
+            self.next_validation_time = self.seconds_before + left / self.validations
         self._tell(demos.text())
         return demos.to_dict()
 
