@@ -18,6 +18,7 @@ goal (the env's ``t_reach``) or fails on the way is dropped.
 from __future__ import annotations
 
 import functools
+import sys
 import time
 from dataclasses import asdict, dataclass
 from typing import Any, Callable, Optional
@@ -214,11 +215,11 @@ def solve(prog, task: str, count: int, run_seed: int, *, workers: Optional[int] 
           state_seconds: float = DEMONSTRATION_STATE_SECONDS,
           check_stop: Optional[Callable[[], None]] = None) -> Witnesses:
     """Draw ``count`` initial states of ``task`` (seed :func:`demonstration_seed` of ``run_seed``)
-    and solve them with the oracle (``workers`` processes, default one per core). A sequence
+    and solve them with the oracle (``workers`` processes; default one per core, or one where
+    JAX is loaded already, as in a sweep's worker after its first run). A sequence
     longer than the task's longest episode is left out, as is a state already in the goal; each
     replay's episode length is drawn from the task's range, at least its sequence's length.
-    ``check_stop()`` is called as the oracle progresses (it raises to abandon the search). Call
-    it before JAX is loaded: the oracle's workers are forked.
+    ``check_stop()`` is called as the oracle progresses (it raises to abandon the search).
     """
     from asap_dsl.limits import available_cores
 
@@ -230,7 +231,9 @@ def solve(prog, task: str, count: int, run_seed: int, *, workers: Optional[int] 
     tm = prog.task(task).model
     n = prog.system.n_state
     states = task_states(prog.system, tm, int(count), seed=seed)
-    n_workers = max(1, min(int(workers or available_cores()), len(states)))
+    if workers is None:  # forking a process that runs JAX may deadlock: one process then
+        workers = 1 if "jax" in sys.modules else available_cores()
+    n_workers = max(1, min(int(workers), len(states)))
     try:
         report = run_oracle(prog, task, states=states, workers=n_workers, time_limit=state_seconds,
                             progress=None if check_stop is None else (lambda _k: check_stop()))
