@@ -12,7 +12,10 @@ ratios.
 
 A variant is an engine, optionally with its threads: ``sbx`` (one XLA compute thread, what the
 engine sets), ``sbx:eigen`` (XLA's multi-threaded default), ``sb3`` (torch's default threads),
-``sb3:1`` (one torch thread, as a sweep's workers run).
+``sb3:1`` (one torch thread, as a sweep's workers run); and optionally the environment step after
+an ``@``: ``sb3@numpy`` is the default as issue 16 found it (torch, the numpy step), e.g.
+
+    .venv/bin/python benchmarks/engines.py --spec specs/attitude.asap --steps 30000 --variants sbx,sb3@numpy
 """
 
 from __future__ import annotations
@@ -31,7 +34,10 @@ ROOT = Path(__file__).resolve().parents[1]
 
 def _child(args) -> dict:
     """One variant's training and gradient-step timing, in this (fresh) process."""
-    engine, _, threads = args.child.partition(":")
+    variant, _, step = args.child.partition("@")
+    engine, _, threads = variant.partition(":")
+    if step:
+        os.environ["ASAP_ENGINE"] = step  # make_vec_env's step: native, numpy or auto
     if threads == "eigen":
         os.environ["XLA_FLAGS"] = "--xla_cpu_multi_thread_eigen=true"  # the engine leaves an explicit choice alone
     if threads.isdigit():
