@@ -219,6 +219,23 @@ class Setting:
 
 
 @dataclass(frozen=True)
+class ListValue:
+    """``[64, 64]``: a list, as a training setting's value (``net_arch = [64, 64]``)."""
+
+    items: tuple[object, ...]
+    span: Span
+
+
+@dataclass(frozen=True)
+class ObjectValue:
+    """``{pi: [64], qf: [400, 300]}``: named values, as a training setting's value; each entry is
+    ``(name, value, name_span)``."""
+
+    entries: tuple[tuple[str, object, Span], ...]
+    span: Span
+
+
+@dataclass(frozen=True)
 class IntegratorDecl:
     method: str
     settings: tuple[Setting, ...]

@@ -17,13 +17,33 @@ ALGORITHMS = ("sac", "td3", "ddpg", "ppo", "a2c")
 REWARDS: dict[str, dict[str, Optional[float]]] = {
     "asap": {}, "rho": {"window": None}, "distance": {"lambda_t": 1.0, "lambda_o": 1.0, "base": 0.0}}
 INTEGRATORS = {"rk4": ("substeps",), "euler": ("substeps",), "exact": ()}
-TRAIN_SETTINGS = {
-    "algo": "str", "steps": "int", "seed": "int", "preset": "str", "n_envs": "int",
-    "learning_rate": "float", "batch_size": "int", "buffer_size": "int", "gamma": "float",
-    "tau": "float", "learning_starts": "int", "train_freq": "int", "gradient_steps": "int",
-    "n_steps": "int", "ent_coef": "float", "gae_lambda": "float", "n_epochs": "int",
-    "vf_coef": "float", "max_grad_norm": "float", "eval_episodes": "int",
-}
+#: The settings of a ``train { ... }`` block that are the run's own, and what each takes.
+RUN_SETTINGS = {"algo": "str", "steps": "int", "seed": "int", "preset": "str", "n_envs": "int", "eval_episodes": "int"}
+#: The other settings: the keywords of the algorithms' constructors and of their policies, in
+#: stable-baselines3 and in sbx, every algorithm (those the run sets itself, such as ``env`` and
+#: ``seed``, left out), and the language's own ``target_entropy_per_action`` (SAC) and
+#: ``action_noise`` (a number: the std of TD3/DDPG's Gaussian noise over the action half-range).
+#: Which of them the run's algorithm and engine take is checked when it trains, against the
+#: installed constructor (:mod:`asap_dsl.backends.rl.hyper`); tests/test_train_settings.py keeps
+#: this list equal to the installed libraries'. The checker has it by name: no import of them.
+HYPERPARAMETERS = (
+    "action_noise", "activation_fn", "actor_class", "batch_size", "buffer_size", "clip_mean", "clip_range",
+    "clip_range_vf", "critic_class", "dropout_rate", "ent_coef", "features_extractor_class",
+    "features_extractor_kwargs", "full_std", "gae_lambda", "gamma", "gradient_steps", "layer_norm",
+    "learning_rate", "learning_starts", "log_std_init", "max_grad_norm", "n_critics", "n_epochs", "n_steps",
+    "net_arch", "normalize_advantage", "normalize_images", "optimize_memory_usage", "optimizer_class",
+    "optimizer_kwargs", "ortho_init", "param_resets", "policy_delay", "policy_kwargs", "qf_learning_rate",
+    "replay_buffer_class", "replay_buffer_kwargs", "rms_prop_eps", "rollout_buffer_class", "rollout_buffer_kwargs",
+    "sde_sample_freq", "share_features_extractor", "squash_output", "stats_window_size", "target_entropy",
+    "target_entropy_per_action", "target_kl", "target_noise_clip", "target_policy_noise", "target_update_interval",
+    "tau", "train_freq", "use_expln", "use_rms_prop", "use_sde", "use_sde_at_warmup", "vector_critic_class",
+    "vf_coef",
+)
+#: Hyperparameters that are whole numbers (0 or more) wherever they are numbers.
+WHOLE_HYPERPARAMETERS = ("batch_size", "buffer_size", "learning_starts", "train_freq", "gradient_steps", "n_steps",
+                         "n_epochs", "n_critics", "policy_delay", "sde_sample_freq", "stats_window_size",
+                         "target_update_interval")
+TRAIN_SETTINGS = {**RUN_SETTINGS, **{k: "value" for k in HYPERPARAMETERS}}
 OBSERVE_ITEMS = ("state", "time")
 _MAX_STEPS = 1e9  # a time of more steps than this is a typo, not an episode
 _FUTURE_TO_PAST = {"always": "historically", "eventually": "once", "until": "since"}

@@ -8,7 +8,8 @@ import math
 from typing import Callable, Optional
 
 from . import ast
-from .checker_common import (ALGORITHMS, OBSERVE_ITEMS, REWARDS, TRAIN_SETTINGS, CheckState, _Unresolved)
+from .checker_common import (ALGORITHMS, CONST, OBSERVE_ITEMS, REWARDS, RUN_SETTINGS, TRAIN_SETTINGS,
+                             WHOLE_HYPERPARAMETERS, CheckState, _Unresolved)
 from .checker_exprs import Conditions, Numbers
 from .diagnostics import Span
 from .diagnostics import closest as _closest
@@ -150,50 +151,83 @@ class TaskChecks:
         return tuple(names)
 
     def train(self, settings) -> dict:
+        """The ``train { ... }`` block: the run's own settings (typed) and the algorithms'
+        keywords (:data:`HYPERPARAMETERS`) as values — numbers, true/false, texts, lists and named
+        values. Which keywords the run's algorithm and engine take is checked when it trains."""
         out: dict = {}
         errors = 0
         for s in settings:
             if s.name not in TRAIN_SETTINGS:
                 sug = _closest(s.name, TRAIN_SETTINGS)
                 self.d.add("E117", f"unknown training setting '{s.name}'", s.name_span,
-                           hint=f"did you mean '{sug}'?" if sug else "settings: " + ", ".join(TRAIN_SETTINGS))
-                errors += 1
-                continue
-            kind = TRAIN_SETTINGS[s.name]
-            value = s.value
-            if kind == "str":
-                text = value[1:-1] if isinstance(value, str) else (value.id if isinstance(value, ast.Name) else None)
-                if text is None:
-                    self.d.add("E117", f"'{s.name}' takes a name, such as `{s.name} = sac`", s.span)
-                    errors += 1
-                    continue
-                if s.name == "algo" and text not in ALGORITHMS:
-                    sug = _closest(text, ALGORITHMS)
-                    self.d.add("E117", f"unknown algorithm '{text}'", s.span,
-                               hint=f"did you mean '{sug}'?" if sug else "choose " + ", ".join(ALGORITHMS))
-                    errors += 1
-                    continue
-                out[s.name] = text
-                continue
-            if isinstance(value, str):
-                self.d.add("E117", f"'{s.name}' takes a number, not a string", s.span)
+                           hint=f"did you mean '{sug}'?" if sug else "the run's settings are " + ", ".join(RUN_SETTINGS)
+                           + ", and the algorithm's keywords (learning_rate, use_sde, net_arch, ...)")
                 errors += 1
                 continue
             try:
-                number = self.n.constant(value, f"the training setting {s.name}")
+                out[s.name] = self._train_setting(s)
             except _Unresolved:
                 errors += 1
-                continue
-            if kind == "int":
-                if not float(number).is_integer() or number < 0:
-                    self.d.add("E117", f"'{s.name}' must be a whole number, not {number(number)}", s.span)
-                    errors += 1
-                    continue
-                number = int(number)
-            out[s.name] = number
         if errors:
             raise _Unresolved
         return out
+
+    def _train_setting(self, s: ast.Setting):
+        kind = TRAIN_SETTINGS[s.name]
+        if kind == "str":
+            text = _text(s.value)
+            if text is None:
+                self.d.add("E117", f"'{s.name}' takes a name, such as `{s.name} = sac`", s.span)
+                raise _Unresolved
+            if s.name == "algo" and text not in ALGORITHMS:
+                sug = _closest(text, ALGORITHMS)
+                self.d.add("E117", f"unknown algorithm '{text}'", s.span,
+                           hint=f"did you mean '{sug}'?" if sug else "choose " + ", ".join(ALGORITHMS))
+                raise _Unresolved
+            return text
+        value = self._train_value(s.value, f"the training setting {s.name}")
+        whole = kind == "int" or s.name in WHOLE_HYPERPARAMETERS
+        if kind == "int" and (isinstance(value, bool) or not isinstance(value, (int, float))):
+            self.d.add("E117", f"'{s.name}' takes a number", s.span)
+            raise _Unresolved
+        if whole and isinstance(value, (int, float)) and not isinstance(value, bool) \
+                and not (float(value).is_integer() and value >= 0):
+            self.d.add("E117", f"'{s.name}' must be a whole number, 0 or more, not {number(value)}", s.span)
+            raise _Unresolved
+        return value
+
+    def _train_value(self, value, what: str):
+        """A training value as Python data: a number (whole numbers as int), a bool, a text (a
+        string, or a name that is no constant: `ent_coef = auto`), a list or a dict."""
+        if isinstance(value, ast.BoolLiteral):
+            return bool(value.value)
+        text = _text(value)
+        if text is not None and not (isinstance(value, ast.Name) and self.s.kinds.get(value.id, (None,))[0] == CONST):
+            return text
+        if isinstance(value, ast.ListValue):
+            return [self._train_value(v, what) for v in value.items]
+        if isinstance(value, ast.ObjectValue):
+            out: dict = {}
+            for name, v, span in value.entries:
+                if name in out:
+                    self.d.add("E117", f"'{name}' is given twice in {what}", span)
+                    raise _Unresolved
+                out[name] = self._train_value(v, what)
+            return out
+        x = self.n.constant(value, what)
+        if not math.isfinite(x):
+            self.d.add("E117", f"{what} must be a finite number, not {number(x)}", value.span)
+            raise _Unresolved
+        return int(x) if float(x).is_integer() and abs(x) < 2 ** 53 else float(x)
+
+
+def _text(value) -> Optional[str]:
+    """The text of a string literal (without its quotes) or of a bare name; None otherwise."""
+    if isinstance(value, str):
+        return value[1:-1]
+    if isinstance(value, ast.Name):
+        return value.id
+    return None
 
 
 def reward_model(syn: ast.RewardSyntax, numbers: Numbers) -> RewardModel:

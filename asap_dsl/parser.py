@@ -361,6 +361,16 @@ class _Builder(Transformer):
         syn = children[0]
         return ast.Clause("reward", ast.RewardSyntax(syn.kind, syn.settings, _span(meta)), _span(meta))
 
+    def train_list(self, meta, children):
+        return ast.ListValue(tuple(c for c in children if c is not None), _span(meta))
+
+    def train_entry(self, meta, children):
+        tok, value = children
+        return (str(tok), value, token_span(tok))
+
+    def train_object(self, meta, children):
+        return ast.ObjectValue(tuple(c for c in children if c is not None), _span(meta))
+
     def train_block(self, meta, children):
         settings = tuple(c for c in children if isinstance(c, ast.Setting))
         return ast.Clause("train", settings, _span(meta))

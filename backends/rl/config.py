@@ -7,12 +7,13 @@ from __future__ import annotations
 from dataclasses import asdict, dataclass, field, fields
 from typing import Any, Mapping, Optional
 
-from asap_dsl.checker_common import ALGORITHMS
+from asap_dsl.checker_common import ALGORITHMS, RUN_SETTINGS
 from asap_dsl.rewards import check_reward_fits, resolve_reward
 from asap_dsl.sampling import EVAL_SEED
 
 from .presets import OFF_POLICY, get_preset
 from .engines import REFERENCE, choose_engine
+from . import hyper as _hyper
 
 __all__ = ["ConfigError", "TrainConfig", "VALIDATION_SEED", "resolve_config"]
 
@@ -23,9 +24,7 @@ assert VALIDATION_SEED != EVAL_SEED
 
 # Settings of a ``train { ... }`` block that are hyperparameters of the algorithm (the rest —
 # algo, steps, seed, preset, n_envs, eval_episodes — are the run's own).
-_RUN_KEYS = ("algo", "steps", "seed", "preset", "n_envs", "eval_episodes")
-_ON_POLICY_ONLY = ("n_epochs", "gae_lambda", "vf_coef", "max_grad_norm", "ent_coef")
-_OFF_POLICY_ONLY = ("buffer_size", "tau", "learning_starts", "train_freq", "gradient_steps")
+_RUN_KEYS = tuple(RUN_SETTINGS)
 
 
 class ConfigError(ValueError):
@@ -90,24 +89,6 @@ class TrainConfig:
         return d
 
 
-def _hyper_for(algo: str, values: Mapping[str, Any]) -> dict[str, Any]:
-    """Keep the settings that ``algo`` takes; ``n_steps`` is the rollout length of PPO/A2C and the
-    n-step return of SAC/TD3/DDPG (stable-baselines3's meaning for each)."""
-    drop = _OFF_POLICY_ONLY if algo not in OFF_POLICY else _ON_POLICY_ONLY
-    out = {k: v for k, v in values.items() if k not in drop}
-    if algo in ("td3", "ddpg"):
-        out.pop("ent_coef", None)
-    if algo == "a2c":
-        out.pop("batch_size", None)
-    if algo not in ("td3", "ddpg"):
-        out.pop("action_noise", None)
-    if algo != "sac":
-        out.pop("target_entropy_per_action", None)
-    if algo != "a2c":
-        out.pop("rms_prop_eps", None)
-    return out
-
-
 def resolve_config(prog, task: Optional[str] = None, *, algo: Optional[str] = None, reward: Optional[str] = None,
                    steps: Optional[int] = None, seed: Optional[int] = None, preset: Optional[str] = None,
                    n_envs: Optional[int] = None, settings: Optional[Mapping[str, Any]] = None,
@@ -145,10 +126,7 @@ def resolve_config(prog, task: Optional[str] = None, *, algo: Optional[str] = No
     except (ValueError, TypeError) as err:
         raise ConfigError(str(err)) from None
     reward_text = model.text
-    hyper = p.settings(algo)
-    hyper.update({k: v for k, v in block.items() if k not in _RUN_KEYS})
-    hyper.update(dict(settings or {}))
-    hyper = _hyper_for(algo, hyper)
+    hyper = _hyperparameters(p.settings(algo), block, settings, algo, engine, block_algo=block.get("algo") or p.algo)
     total = int(steps if steps is not None else block.get("steps", p.steps))
     envs = int(n_envs if n_envs is not None else block.get("n_envs", p.n_envs))
     run_seed = int(seed if seed is not None else block.get("seed", 0))
@@ -182,6 +160,24 @@ def resolve_config(prog, task: Optional[str] = None, *, algo: Optional[str] = No
         validation_episodes=p.validation_episodes, validation_seed=VALIDATION_SEED, validate_every=every,
         eval_episodes=episodes, hyper=hyper, time_limit=None if time_limit is None else float(time_limit),
         demonstrations=demos)
+
+
+def _hyperparameters(preset: Mapping[str, Any], block: Mapping[str, Any], settings: Optional[Mapping[str, Any]],
+                     algo: str, engine: str, block_algo: str) -> dict[str, Any]:
+    """The preset's, the block's and the explicit settings merged (later stronger, ``policy_kwargs``'
+    entries one setting each: :mod:`.hyper`) and checked against what ``algo`` takes on ``engine``.
+    The block's settings of another algorithm are left out when the run trains another than the
+    block's own (``block_algo``: an ``--algo`` that overrides it); the explicit ones must all apply."""
+    own = {k: v for k, v in block.items() if k not in _RUN_KEYS}
+    if settings is not None and not isinstance(settings, Mapping):
+        raise ConfigError(f"settings must be a mapping of setting names to values; got {type(settings).__name__}")
+    try:
+        layers = [_hyper.normalise(preset, f"the {algo} preset"), _hyper.normalise(own, "the train block"),
+                  _hyper.normalise(dict(settings or {}), "settings")]
+        foreign = frozenset(layers[1]) if block_algo != algo else frozenset()
+        return _hyper.check(algo, engine, _hyper.merge(*layers), foreign_ok=foreign)
+    except ValueError as err:
+        raise ConfigError(str(err)) from None
 
 
 def _demonstrations(prog, algo: str, explicit: Optional[int], preset: int) -> int:

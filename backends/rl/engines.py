@@ -138,7 +138,7 @@ class SbxEngine(Engine):
     def build(self, algo, env, settings, seed, tensorboard_log=None):
         from .sb3 import model_kwargs
 
-        kw = model_kwargs(algo, env.action_space, settings)
+        kw = model_kwargs(algo, env.action_space, settings, self.name)
         if algo == "ddpg":
             kw.setdefault("qf_learning_rate", None)  # sbx's DDPG defaults the critic to 1e-3; SB3 uses one rate
         if algo == "ppo":

@@ -143,15 +143,17 @@ class PolicyController:
         return self.scaling.action(a)
 
 
-def model_kwargs(algo: str, action_space: spaces.Box, settings: dict[str, Any]) -> dict[str, Any]:
-    """The keywords of a model class with stable-baselines3's API (its own or sbx's) for the
-    resolved hyperparameters ``settings``: those of the class, plus ``net_arch`` (into
-    ``policy_kwargs``), for TD3/DDPG ``action_noise`` (the std of Gaussian exploration noise as a
-    fraction of the action half-range) and for SAC ``target_entropy_per_action``."""
+def model_kwargs(algo: str, action_space: spaces.Box, settings: dict[str, Any], engine: str = "sb3") -> dict[str, Any]:
+    """The keywords of ``algo``'s model class on ``engine`` (stable-baselines3's own or sbx's) for
+    the resolved hyperparameters ``settings``: the constructor's, the policy's in
+    ``policy_kwargs`` (:func:`.hyper.split`), for TD3/DDPG ``action_noise`` as a number (the std of
+    Gaussian exploration noise as a fraction of the action half-range) and for SAC
+    ``target_entropy_per_action``."""
     from stable_baselines3.common.noise import NormalActionNoise
 
-    kw = dict(settings)
-    net_arch = kw.pop("net_arch", None)
+    from .hyper import split
+
+    kw, policy = split(engine, algo, settings)
     noise = kw.pop("action_noise", None)
     per_action = kw.pop("target_entropy_per_action", None)
     m = action_space.shape[0]
@@ -160,7 +162,7 @@ def model_kwargs(algo: str, action_space: spaces.Box, settings: dict[str, Any]) 
     if noise:
         half = (action_space.high - action_space.low) / 2.0
         kw["action_noise"] = NormalActionNoise(np.zeros(m), float(noise) * half.astype(np.float64))
-    kw["policy_kwargs"] = {"net_arch": list(net_arch)} if net_arch is not None else {}
+    kw["policy_kwargs"] = policy
     return kw
 
 
@@ -169,7 +171,7 @@ def build_model(algo: str, env, settings: dict[str, Any], seed: int, tensorboard
     (:func:`model_kwargs`). The engine of a run builds it: :mod:`.engines`."""
     cls = _algo_class(algo)
     return cls("MlpPolicy", env, seed=seed, device="cpu", tensorboard_log=tensorboard_log, verbose=0,
-               **model_kwargs(algo, env.action_space, settings))
+               **model_kwargs(algo, env.action_space, settings, "sb3"))
 
 
 def load_model(algo: str, path: Path, env=None):

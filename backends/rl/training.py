@@ -505,7 +505,12 @@ def _run(prog: Program, cfg: TrainConfig, run: RunDir, stop: Interrupts, *, resu
             run.acquire(exclusive=True)  # the run it replaces (or the empty directory) is ours until then
         session = _Session(prog, cfg, run, progress, callbacks, stop)
         witnesses = session.witnesses()
-        model = session.engine.build(cfg.algo, session.env, cfg.hyper, cfg.seed, tensorboard_log=str(run.tensorboard_dir))
+        try:
+            model = session.engine.build(cfg.algo, session.env, cfg.hyper, cfg.seed,
+                                         tensorboard_log=str(run.tensorboard_dir))
+        except (TypeError, ValueError, AssertionError) as err:  # a value the library itself refused
+            raise ConfigError(f"the {cfg.engine} engine's {cfg.algo.upper()} refused the settings: "
+                              f"{str(err).rstrip('.') or type(err).__name__}") from None
         # Before the run exists: its first checkpoint holds them, so a resume never adds them again.
         demos = session.demonstrate(model, witnesses) if witnesses is not None else None
         if stop.requested:  # nothing was created yet
