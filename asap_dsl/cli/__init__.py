@@ -1,7 +1,7 @@
 """``asapc``: the command line. I/O lives here; everything it reports is computed elsewhere.
 
-One module per command (:mod:`.lint`, :mod:`.show`, :mod:`.train`, :mod:`.eval`, :mod:`.oracle`,
-:mod:`.compare`), each with a ``fill_X_subparser`` that adds its flags and an ``X_command`` that
+One module per command (:mod:`.lint`, :mod:`.show`, :mod:`.train`, :mod:`.eval`, :mod:`.export`,
+:mod:`.oracle`, :mod:`.compare`), each with a ``fill_X_subparser`` that adds its flags and an ``X_command`` that
 runs it; what they share (argparse types, ``--task``, ``--seed``, ``--workers``, the failures) is
 :mod:`.args`. A command fails by raising; :func:`main` is the one place that turns an exception
 into a sentence and an exit status:
@@ -39,6 +39,7 @@ from ..limits import LIMITS, available_cores
 from .args import CliError, positive_int
 from .compare import fill_compare_subparser
 from .eval import fill_eval_subparser
+from .export import fill_export_subparser
 from .lint import fill_lint_subparser
 from .oracle import fill_oracle_subparser
 from .show import fill_show_subparser, show_data
@@ -63,7 +64,7 @@ def build_parser() -> argparse.ArgumentParser:
     sub = p.add_subparsers(dest="command", metavar="COMMAND")
     sub.required = True
     for fill in (fill_lint_subparser, fill_show_subparser, fill_train_subparser, fill_eval_subparser,
-                 fill_compare_subparser, fill_oracle_subparser):
+                 fill_export_subparser, fill_compare_subparser, fill_oracle_subparser):
         fill(sub)
     return p
 
