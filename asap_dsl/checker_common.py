@@ -45,6 +45,9 @@ WHOLE_HYPERPARAMETERS = ("batch_size", "buffer_size", "learning_starts", "train_
                          "target_update_interval")
 TRAIN_SETTINGS = {**RUN_SETTINGS, **{k: "value" for k in HYPERPARAMETERS}}
 OBSERVE_ITEMS = ("state", "time")
+#: `observe scaling = ...`: the box each state entry of the policy's input is scaled from
+#: (:mod:`asap_dsl.observation`).
+OBSERVATION_SCALINGS = ("init", "state", "none")
 _MAX_STEPS = 1e9  # a time of more steps than this is a typo, not an episode
 _FUTURE_TO_PAST = {"always": "historically", "eventually": "once", "until": "since"}
 

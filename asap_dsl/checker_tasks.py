@@ -8,7 +8,7 @@ import math
 from typing import Callable, Optional
 
 from . import ast
-from .checker_common import (ALGORITHMS, CONST, OBSERVE_ITEMS, REWARDS, RUN_SETTINGS, TRAIN_SETTINGS,
+from .checker_common import (ALGORITHMS, CONST, OBSERVATION_SCALINGS, OBSERVE_ITEMS, REWARDS, RUN_SETTINGS, TRAIN_SETTINGS,
                              WHOLE_HYPERPARAMETERS, CheckState, _Unresolved)
 from .checker_exprs import Conditions, Numbers
 from .diagnostics import Span
@@ -82,9 +82,9 @@ class TaskChecks:
             value = clauses["r_sat"].value
             if not (isinstance(value, ast.Name) and value.id == "auto"):
                 r_sat = attempt(self.n.finite_constant, value, "r_sat")
-        observe = ("state",)
+        observe, observe_scaling = ("state",), None
         if "observe" in clauses:
-            observe = attempt(self.observe, clauses["observe"].value, default=("state",))
+            observe, observe_scaling = attempt(self.observe, clauses["observe"].value, default=(("state",), None))
         train = attempt(self.train, clauses["train"].value, default={}) if "train" in clauses else {}
         init_box = attempt(self.task_init, clauses["init"].value) if "init" in clauses else None
         if errors or asap is None or deadline is None:
@@ -93,6 +93,7 @@ class TaskChecks:
             t.name, asap, avoid, deadline, tolerances, episode, reward or RewardModel(), r_sat, observe, train, t.span,
             {k: c.span for k, c in clauses.items()},
             asap_regions, ir.positive_regions(avoid) if avoid is not None else (), init_box,
+            observe_scaling=observe_scaling,
         )
 
     def task_init(self, box: ast.Box) -> tuple[tuple[float, ...], tuple[float, ...]]:
@@ -134,9 +135,15 @@ class TaskChecks:
             raise _Unresolved
         return tuple(low), tuple(high)
 
-    def observe(self, items) -> tuple[str, ...]:
-        names = []
-        for name, span in items:
+    def observe(self, items) -> tuple[tuple[str, ...], Optional[str]]:
+        """The observed items (the state first) and ``scaling = ...`` if given."""
+        names: list[str] = []
+        scaling: Optional[str] = None
+        for item in items:
+            if isinstance(item, ast.Setting):
+                scaling = self._observe_scaling(item, scaling)
+                continue
+            name, span = item
             if name not in OBSERVE_ITEMS:
                 sug = _closest(name, OBSERVE_ITEMS)
                 self.d.add("E117", f"cannot observe '{name}'", span, hint=f"did you mean '{sug}'?" if sug else "observe state or state, time")
@@ -145,10 +152,30 @@ class TaskChecks:
                 self.d.add("E117", f"'{name}' is observed twice", span)
                 raise _Unresolved
             names.append(name)
+        if not names:  # `observe scaling = none`: the state, scaled so
+            names = ["state"]
         if names[0] != "state":
-            self.d.add("E117", "the observation starts with the state: write `observe state, time`", items[0][1])
+            first = next(item for item in items if not isinstance(item, ast.Setting))
+            self.d.add("E117", "the observation starts with the state: write `observe state, time`", first[1])
             raise _Unresolved
-        return tuple(names)
+        return tuple(names), scaling
+
+    def _observe_scaling(self, s: ast.Setting, earlier: Optional[str]) -> str:
+        if s.name != "scaling":
+            self.d.add("E117", f"`observe` has no setting '{s.name}'", s.name_span,
+                       hint="did you mean 'scaling'?" if _closest(s.name, ("scaling",)) else
+                       "write `observe state, scaling = init` (init, state or none)")
+            raise _Unresolved
+        if earlier is not None:
+            self.d.add("E117", "the observation's scaling is given twice", s.span)
+            raise _Unresolved
+        if s.value not in OBSERVATION_SCALINGS:
+            sug = _closest(s.value, OBSERVATION_SCALINGS)
+            self.d.add("E117", f"unknown observation scaling '{s.value}'", s.span,
+                       hint=(f"did you mean '{sug}'? " if sug else "") + "init (the init box where it has width, else "
+                       "the state space), state (the state space where it is bounded, else the init box) or none")
+            raise _Unresolved
+        return s.value
 
     def train(self, settings) -> dict:
         """The ``train { ... }`` block: the run's own settings (typed) and the algorithms'

@@ -237,6 +237,9 @@ class TaskModel:
     # The task's own initial box (`init box(...)`), every state's range, those it does not name
     # from the system's `init`; None: the system's box.
     init_box: Optional[tuple[tuple[float, ...], tuple[float, ...]]] = None
+    # `observe scaling = init | state | none`: how training scales the policy's inputs
+    # (asap_dsl.observation); None: the training preset's choice.
+    observe_scaling: Optional[str] = None
 
     @property
     def spec(self) -> ir.Formula:

@@ -232,7 +232,7 @@ class _Builder(Transformer):
             if isinstance(item, tuple) and item[0] == "sep":
                 last_sep = item[1]
                 continue
-            if isinstance(item, tuple) and item[0] in ("bare_binding", "bare_duration", "bare_name"):
+            if isinstance(item, tuple) and item[0] in ("bare_binding", "bare_duration", "bare_name", "bare_observe"):
                 kind, payload = item
                 folded = continue_head(kind, out[-1], payload) if last_sep == "," and out else None
                 if folded is None and attach is not None and last_sep is None and out:
@@ -256,6 +256,9 @@ class _Builder(Transformer):
                 "E119", f"'{payload.name} = ...' is not a declaration here", payload.span,
                 hint=f"write `const {payload.name} = ...` or `let {payload.name} = ...`",
             )
+        elif kind == "bare_observe":
+            self.diag.add("E119", f"'{payload.name} = {payload.value}' does not belong to any clause", payload.span,
+                          hint=f"it is a setting of `observe`: write `observe state, {payload.name} = {payload.value}`")
         elif kind == "bare_duration":
             self.diag.add("E119", "a number on its own does not belong to any clause", payload.span,
                           hint="only `tolerances` takes a comma-separated list of numbers")
@@ -344,6 +347,16 @@ class _Builder(Transformer):
     def bare_name(self, meta, children):
         return ("bare_name", children[0])
 
+    def observe_choice(self, meta, children):
+        return str(children[0])
+
+    def observe_setting(self, meta, children):  # `scaling = init`, its value a plain name
+        tok, value = children
+        return ast.Setting(str(tok), value, _span(meta), token_span(tok))
+
+    def bare_observe(self, meta, children):
+        return ("bare_observe", children[0])
+
     def episode_clause(self, meta, children):
         return ast.Clause("episode", (children[0], children[1]), _span(meta))
 
@@ -380,7 +393,7 @@ class _Builder(Transformer):
 
         def continue_clause(kind, head, payload):
             # `tolerances 30, 25` and `observe state, time` continue with comma-separated items.
-            want = {"bare_duration": "tolerances", "bare_name": "observe"}.get(kind)
+            want = {"bare_duration": "tolerances", "bare_name": "observe", "bare_observe": "observe"}.get(kind)
             if not (isinstance(head, ast.Clause) and head.keyword == want):
                 return None
             end = payload[1] if isinstance(payload, tuple) else payload.span

@@ -137,3 +137,52 @@ def test_a_block_for_another_algorithm_is_left_out_when_the_flag_overrides_it(ti
     prog = asap_dsl.loads(_rail("  train { algo = ppo, n_epochs = 3 }\n"), "rail.asap")
     assert resolve_config(prog).hyper["n_epochs"] == 3
     assert "n_epochs" not in resolve_config(prog, algo="sac").hyper
+
+
+# ----------------------------------------------------------------------- 2. observation scaling
+def test_an_init_range_of_zero_width_is_scaled_by_the_state_space_and_said(tmp_path, capsys):
+    from asap_dsl.backends.rl.sb3 import Scaling
+
+    spec = tmp_path / "still.asap"
+    spec.write_text(_rail(init="init [0, 0]"))  # every episode starts at rest: the init box has no width
+    prog = asap_dsl.load(spec)
+    cfg = resolve_config(prog)
+    assert cfg.observation_scaling == "init" and cfg.observation_sources == {"x": "state"}
+    scaling = Scaling.for_run(prog.system, cfg, prog.task("go").model.init_box)
+    assert scaling.sources == ("state",) and scaling.obs_half[0] == 2.0  # was 1: the raw entry beside scaled ones
+    code, out, _ = asapc(capsys, "show", spec)
+    assert code == 0 and "observe        state  (the default preset's scaling: x by the state space)" in out
+    code, out, _ = asapc(capsys, "show", "--format", "json", spec)
+    assert json.loads(out)["tasks"]["go"]["observation_scaling"]["entries"] == {"x": "state"}
+
+
+def test_observe_scaling_chooses_the_box_and_the_manifest_records_it(tmp_path, tiny):
+    prog = asap_dsl.loads(_rail().replace("deadline 20", "deadline 20\n  observe state, time, scaling = none"), "rail.asap")
+    cfg = resolve_config(prog)
+    assert prog.task("go").model.observe == ("state", "time") and cfg.observation_scaling == "none"
+    assert cfg.observation_sources == {"x": "none"}
+    assert resolve_config(prog, preset="paper").observation_scaling == "none"
+    res = asap_dsl.train(tiny, steps=64, n_envs=2, out=tmp_path / "r", settings=FAST, evaluate=False, engine="sb3")
+    assert RunDir(res.run_dir).read_manifest()["config"]["observation_sources"] == {"x": "init"}
+
+
+def test_a_run_from_before_the_per_entry_rule_keeps_its_own_scaling(tmp_path):
+    from asap_dsl.backends.rl.config import TrainConfig
+    from asap_dsl.backends.rl.sb3 import Scaling
+
+    prog = asap_dsl.loads(_rail(init="init [0, 0]"), "still.asap")
+    old = resolve_config(prog).to_dict()
+    del old["observation_sources"]  # a manifest written before it was recorded
+    cfg = TrainConfig.from_dict(old)
+    assert cfg.observation_sources is None
+    assert Scaling.for_run(prog.system, cfg, None).sources == ("none",)  # the entry stayed raw then
+
+
+@pytest.mark.parametrize("clause, words", [("observe state, scalin = init", "did you mean 'scaling'"),
+                                           ("observe state, scaling = sate", "did you mean 'state'"),
+                                           ("scaling = init", "write `observe state, scaling = init`")])
+def test_a_wrong_observe_scaling_is_one_diagnostic(clause, words):
+    from conftest import diagnostics
+
+    ds = diagnostics(_rail().replace("deadline 20", "deadline 20\n  " + clause))
+    assert len(ds) == 1 and words in (ds[0].message + " " + (ds[0].hint or ""))

@@ -14,6 +14,7 @@ from typing import Optional
 
 from ..diagnostics import SpecError, format_report, printable, shorten, span_text
 from ..formatting import number
+from ..observation import describe, shown_scaling
 from ..program import Program, load
 from ..runs import json_safe
 from ..stl import ir
@@ -73,6 +74,7 @@ def show_data(prog: Program, only_task: Optional[str] = None) -> dict:
             continue
         t = prog.model.tasks[name]
         lo, hi = t.rho_bounds
+        scaling = shown_scaling(sys_, t)  # said only where it is not every entry by the init box
         data["tasks"][name] = {
             "asap": _formula_text(t.asap),
             "avoid": None if t.avoid is None else _formula_text(t.avoid),
@@ -84,6 +86,7 @@ def show_data(prog: Program, only_task: Optional[str] = None) -> dict:
             "episode": list(t.episode),
             "reward": t.reward.text,
             "observe": list(t.observe),
+            **({} if scaling is None else {"observation_scaling": scaling}),
             "init": None if t.init_box is None else [[lo, hi] for lo, hi in zip(*t.init_box)],
             "rho_bounds": [lo, hi],
             "rho_scale": t.rho_scale if t.r_sat is None else 1.0,
@@ -93,6 +96,31 @@ def show_data(prog: Program, only_task: Optional[str] = None) -> dict:
             "train": dict(t.train),
         }
     return data
+
+
+def _scaling_text(t: dict, s: dict) -> str:
+    """``  (scaled for training: p by the init box; v by the state space)`` where show says it."""
+    sc = t.get("observation_scaling")
+    if sc is None:
+        return ""
+    names = list(sc["entries"])
+    how = "scaling = " + sc["mode"] if sc["explicit"] else "the default preset's scaling"
+    return f"  ({how}: {describe(names, [sc['entries'][n] for n in names])})"
+
+
+def _train_text(v) -> str:
+    """A training value as a train block writes it."""
+    if isinstance(v, bool):
+        return "true" if v else "false"
+    if isinstance(v, str):
+        return v if v.isidentifier() else json.dumps(v)
+    if isinstance(v, (int, float)):
+        return str(v)  # as show printed them before lists and named values
+    if isinstance(v, list):
+        return "[" + ", ".join(_train_text(x) for x in v) + "]"
+    if isinstance(v, dict):
+        return "{" + ", ".join(f"{k}: {_train_text(x)}" for k, x in v.items()) + "}"
+    return str(v)
 
 
 def _steps(x: float):
@@ -149,7 +177,7 @@ def show_command(args: argparse.Namespace) -> int:
                 f"  tolerances     {', '.join(map(str, t['tolerances']))}",
                 f"  episode        {t['episode'][0]}..{t['episode'][1]} steps",
                 f"  reward         {t['reward']}",
-                f"  observe        {', '.join(t['observe'])}",
+                f"  observe        {', '.join(t['observe'])}" + _scaling_text(t, s),
                 f"  rho bounds     [{number(lo)}, {number(hi)}]  (robustness of asap over the state space, interval analysis)"]
         if t["r_sat_mode"] == "auto":
             out.append(f"  r_sat          {number(t['r_sat'])}  (auto: rho scaled by {number(t['rho_scale'])} = 1/(rho_max - rho_min); "
@@ -157,7 +185,7 @@ def show_command(args: argparse.Namespace) -> int:
         else:
             out.append(f"  r_sat          {number(t['r_sat'])}  (given; theorem's bound {number(t['r_sat_bound'])})")
         if t["train"]:
-            out.append("  train          " + ", ".join(f"{k} = {v}" for k, v in t["train"].items()))
+            out.append("  train          " + ", ".join(f"{k} = {_train_text(v)}" for k, v in t["train"].items()))
     if prog.warnings:
         out.append("")
         out.append(format_report(prog.warnings, {prog.file: prog.source}))

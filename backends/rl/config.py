@@ -8,6 +8,7 @@ from dataclasses import asdict, dataclass, field, fields
 from typing import Any, Mapping, Optional
 
 from asap_dsl.checker_common import ALGORITHMS, RUN_SETTINGS
+from asap_dsl.observation import observation_sources
 from asap_dsl.rewards import check_reward_fits, resolve_reward
 from asap_dsl.sampling import EVAL_SEED
 
@@ -33,9 +34,9 @@ class ConfigError(ValueError):
 
 # What each stored field must be (the annotations, as text), and how a message names it.
 _STORED_TYPES = {"str": (str,), "int": (int,), "bool": (bool,), "dict[str, Any]": (dict,),
-                 "Optional[float]": (int, float, type(None))}
+                 "Optional[float]": (int, float, type(None)), "Optional[dict[str, str]]": (dict, type(None))}
 _TYPE_WORDS = {"str": "a text", "int": "a whole number", "bool": "true or false", "dict[str, Any]": "an object",
-               "Optional[float]": "a number or null"}
+               "Optional[float]": "a number or null", "Optional[dict[str, str]]": "an object or null"}
 
 
 @dataclass
@@ -61,6 +62,9 @@ class TrainConfig:
     hyper: dict[str, Any] = field(default_factory=dict)
     time_limit: Optional[float] = None  # seconds of training; the run ends (finished) when they are spent
     demonstrations: int = 0   # initial states whose oracle sequences fill the replay buffer first (:mod:`.demonstrations`)
+    # Each state entry's scaling box (init, state or none: asap_dsl.observation); None in runs from
+    # before it was recorded, which used observation_scaling's box for every entry.
+    observation_sources: Optional[dict[str, str]] = None
 
     def to_dict(self) -> dict:
         return asdict(self)
@@ -69,7 +73,7 @@ class TrainConfig:
     def from_dict(cls, data: Mapping[str, Any]) -> "TrainConfig":
         names = {f.name for f in fields(cls)}
         data = {"engine": REFERENCE, **data}  # a run from before engines: stable-baselines3 trained it
-        missing = names - set(data) - {"time_limit", "demonstrations"}  # runs from before them had none
+        missing = names - set(data) - {"time_limit", "demonstrations", "observation_sources"}  # runs from before them had none
         if missing:
             raise ConfigError(f"the stored configuration lacks {', '.join(sorted(missing))}")
         for f in fields(cls):  # a manifest edited by hand: one sentence, not a crash deep in training
@@ -150,16 +154,18 @@ def resolve_config(prog, task: Optional[str] = None, *, algo: Optional[str] = No
         if batch > rollout:
             hyper["batch_size"] = rollout  # a mini-batch cannot exceed the rollout
     every = max(envs, (total // max(1, p.validations)) // envs * envs)
+    scaling = t.observe_scaling or p.observation_scaling
+    sources = dict(zip(prog.system.state_names, observation_sources(prog.system, t.init_box, scaling)))
     return TrainConfig(
         task=t.name, algo=algo, engine=engine, reward=reward_text, seed=run_seed, preset=p.name, steps=total, n_envs=envs,
-        torch_threads=p.torch_threads, observation_scaling=p.observation_scaling, action_scaling=p.action_scaling,
+        torch_threads=p.torch_threads, observation_scaling=scaling, action_scaling=p.action_scaling,
         # With the time left in the observation the deadline is part of the state: an episode's
         # end is a true terminal (no bootstrapping past it). Without it the agent cannot tell, and
         # the time-out must be bootstrapped (stable-baselines3's TimeLimit.truncated handling).
         time_limit_terminal="time" in t.observe,
         validation_episodes=p.validation_episodes, validation_seed=VALIDATION_SEED, validate_every=every,
         eval_episodes=episodes, hyper=hyper, time_limit=None if time_limit is None else float(time_limit),
-        demonstrations=demos)
+        demonstrations=demos, observation_sources=sources)
 
 
 def _hyperparameters(preset: Mapping[str, Any], block: Mapping[str, Any], settings: Optional[Mapping[str, Any]],

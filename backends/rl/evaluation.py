@@ -206,8 +206,10 @@ def _load_run(run: RunDir, spec: Union[str, Path, None]) -> LoadedRun:
         model = get_engine(config.engine).load(config.algo, model_path)
     except Exception as err:  # noqa: BLE001 — a damaged or foreign zip: one line, not a trace
         raise RunError(f"{model_path}: cannot load the model ({type(err).__name__}: {str(err).splitlines()[0] if str(err) else ''})") from None
-    scaling = Scaling.for_system(prog.system, config.observation_scaling, config.action_scaling,
-                                 prog.task(config.task).model.init_box)
+    try:
+        scaling = Scaling.for_run(prog.system, config, prog.task(config.task).model.init_box)
+    except ValueError as err:  # a manifest edited by hand
+        raise RunError(f"{run.manifest_path}: damaged manifest ({err})") from None
     expected = prog.system.n_state + int("time" in prog.task(config.task).model.observe)  # the env's observation
     if tuple(model.observation_space.shape) != (expected,):
         raise RunError(f"{model_path}: the model observes {model.observation_space.shape[0]} values, "

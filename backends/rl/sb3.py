@@ -10,7 +10,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Optional
+from typing import Any, Optional, Sequence
 
 import numpy as np
 from gymnasium import spaces
@@ -33,34 +33,49 @@ def _algo_class(algo: str):
 class Scaling:
     """Affine maps between the environment and the policy.
 
-    Observations: the state entries become ``(s - centre) / half_width`` of the chosen box (the
-    time entry of ``observe state, time`` is already in [0, 1]); actions: the policy's [-1, 1]^m
-    onto the action bounds. ``observation = "none"`` and ``action = False`` are identities.
+    Observations: each state entry becomes ``(s - centre) / half_width`` of its own box, the init
+    box or the state space (:mod:`asap_dsl.observation` chooses per entry; the time entry of
+    ``observe state, time`` is already in [0, 1]); actions: the policy's [-1, 1]^m onto the
+    action bounds. ``observation = "none"`` and ``action = False`` are identities.
     """
 
     obs_centre: np.ndarray
     obs_half: np.ndarray
     act_low: Optional[np.ndarray]
     act_high: Optional[np.ndarray]
+    sources: tuple[str, ...] = ()  # per state entry: init, state or none
 
     @classmethod
-    def for_system(cls, system, observation: str = "none", action: bool = False, init_box=None) -> "Scaling":
-        """``init_box``: the task's own initial box, if it has one (observations scaled from it)."""
-        from asap_dsl.sampling import init_box as _init_box
+    def for_system(cls, system, observation: str = "none", action: bool = False, init_box=None,
+                   sources: Optional[Sequence[str]] = None) -> "Scaling":
+        """``init_box``: the task's own initial box, if it has one; ``sources``: each entry's box
+        as a run recorded it (default: :func:`asap_dsl.observation.observation_sources`)."""
+        from asap_dsl.observation import _boxes, observation_sources
 
         n = system.n_state
-        if observation == "none":
-            centre, half = np.zeros(n), np.ones(n)
-        elif observation in ("init", "state"):
-            lo, hi = _init_box(system, init_box) if observation == "init" else (system.state_low, system.state_high)
-            centre, half = (lo + hi) / 2.0, (hi - lo) / 2.0
-            bad = ~np.isfinite(centre) | ~np.isfinite(half) | (half <= 0)
-            if bad.any():  # an unbounded or degenerate side: leave that entry as it is
-                centre, half = np.where(bad, 0.0, centre), np.where(bad, 1.0, half)
-        else:
-            raise ValueError(f"observation scaling must be none, init or state; got '{observation}'")
+        src = tuple(sources) if sources is not None else observation_sources(system, init_box, observation)
+        if len(src) != n or set(src) - {"init", "state", "none"}:
+            raise ValueError(f"the observation's scaling names {list(src)}, not one of init, state, none per state")
+        (lo_i, hi_i), (lo_s, hi_s) = _boxes(system, init_box)
+        lo = np.where(np.array(src) == "init", lo_i, lo_s)
+        hi = np.where(np.array(src) == "init", hi_i, hi_s)
+        scaled = np.array(src) != "none"
+        with np.errstate(invalid="ignore", over="ignore"):
+            centre = np.where(scaled, (lo + hi) / 2.0, 0.0)
+            half = np.where(scaled, (hi - lo) / 2.0, 1.0)
         return cls(centre, half, system.action_low.copy() if action else None,
-                   system.action_high.copy() if action else None)
+                   system.action_high.copy() if action else None, src)
+
+    @classmethod
+    def for_run(cls, system, config, init_box=None) -> "Scaling":
+        """The scaling a run trained with: its recorded entries, or for a run from before they were
+        recorded, the rule it was trained with (:func:`asap_dsl.observation.legacy_sources`)."""
+        from asap_dsl.observation import legacy_sources
+
+        recorded = getattr(config, "observation_sources", None)
+        sources = (list(recorded.values()) if recorded is not None
+                   else legacy_sources(system, init_box, config.observation_scaling))
+        return cls.for_system(system, config.observation_scaling, config.action_scaling, init_box, sources=sources)
 
     def observation(self, obs: np.ndarray) -> np.ndarray:
         o = np.array(obs, dtype=np.float32, copy=True)

@@ -33,6 +33,7 @@ from asap_dsl.sampling import task_states
 from .config import ConfigError, TrainConfig, resolve_config
 from .presets import OFF_POLICY, get_preset
 from .engines import Engine, get_engine
+from . import hyper as _hyper
 from .sb3 import PolicyController, Scaling, ScaledVecEnv
 
 __all__ = ["TrainProgress", "TrainResult", "train", "validation_score"]
@@ -177,7 +178,7 @@ class _Session:
             torch.set_num_threads(cfg.torch_threads)
         self.task = prog.task(cfg.task).model
         self.tolerances = sorted(self.task.tolerances)
-        self.scaling = Scaling.for_system(prog.system, cfg.observation_scaling, cfg.action_scaling, self.task.init_box)
+        self.scaling = Scaling.for_run(prog.system, cfg, self.task.init_box)
         self.raw_env = make_vec_env(prog, cfg.task, num_envs=cfg.n_envs, seed=cfg.seed, reward=cfg.reward)
         self.env = self.learner_env(self.raw_env)
         val_states = task_states(prog.system, self.task, cfg.validation_episodes, seed=cfg.validation_seed)
@@ -431,7 +432,8 @@ def train(spec: Union[str, Path, Program], task: Optional[str] = None, *, algo: 
         run = RunDir(out if out is not None else Path(runs_dir) / default_run_name(prog.file, cfg.task, cfg.algo,
                                                                                  cfg.reward, cfg.seed))
         given = {"task": task, "algo": algo, "engine": engine, "reward": reward, "seed": seed, "preset": preset,
-                 "n_envs": n_envs, "demonstrations": demonstrations, "settings": dict(settings or {})}
+                 "n_envs": n_envs, "demonstrations": demonstrations,
+                 "settings": _hyper.normalise(dict(settings or {}), "settings")}  # as the run stores them
         try:
             return _run(prog, cfg, run, stop, resume=resume, force=force, given=given, steps=steps,
                         time_limit=time_limit, progress=progress, callbacks=callbacks, evaluate=evaluate)
