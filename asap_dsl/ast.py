@@ -100,6 +100,17 @@ class Logic:
 
 
 @dataclass(frozen=True)
+class Conditional:
+    """``if test then then_ else else_``: a number chosen by a test on numbers at this step
+    (comparisons, joined by ``and``/``or``/``not``)."""
+
+    test: "Expr"
+    then_: "Expr"
+    else_: "Expr"
+    span: Span
+
+
+@dataclass(frozen=True)
 class Duration:
     """A time as written: ``value`` with ``unit`` in ``steps``, ``s``, ``ms``; ``inf`` allowed."""
 
@@ -142,7 +153,8 @@ class Temporal2:
     op_span: Span
 
 
-Expr = Union[Number, Infinity, Name, Call, Unary, Binary, Compare, BoolLiteral, InRegion, Not, Logic, Temporal, Temporal2]
+Expr = Union[Number, Infinity, Name, Call, Unary, Binary, Compare, BoolLiteral, InRegion, Not, Logic, Temporal, Temporal2,
+             Conditional]
 
 # ------------------------------------------------------------------ the system
 

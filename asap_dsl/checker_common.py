@@ -74,9 +74,11 @@ class CheckState:
     consts: dict[str, float] = field(default_factory=dict)
     const_failed: set[str] = field(default_factory=set)  # constants (and dt) whose value had errors
     dt: Optional[float] = None
+    steps_only: bool = False  # a map without `dt`: its times are steps, and nothing converts seconds
     states: list[StateVar] = field(default_factory=list)
     actions: list[ActionVar] = field(default_factory=list)
     lets: dict[str, ast.Expr] = field(default_factory=dict)
+    action_lets: dict[str, str] = field(default_factory=dict)  # a let that reads actions -> one it reads
     regions: dict[str, RegionModel] = field(default_factory=dict)
     formulas: dict[str, FormulaModel] = field(default_factory=dict)
 

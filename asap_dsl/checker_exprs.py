@@ -110,6 +110,10 @@ class Numbers:
             operands.append(e)
             each(lambda side: self.number(side, allowed, context), reversed(operands))
             return
+        if isinstance(e, ast.Conditional):
+            parts = ((self.test, e.test), (self.number, e.then_), (self.number, e.else_))
+            each(lambda part: part[0](part[1], allowed, context), parts)
+            return
         if isinstance(e, ast.Call):
             if e.func not in FUNCTION_ARITY:
                 sug = _closest(e.func, FUNCTION_ARITY)
@@ -126,10 +130,44 @@ class Numbers:
         self.d.add("E116", f"a condition cannot be used as a number in {context}", e.span)
         raise _Unresolved
 
+    def test(self, e: ast.Expr, allowed: tuple[str, ...], context: str) -> None:
+        """Check the test of ``if ... then ... else``: comparisons of numbers over names of the
+        ``allowed`` kinds (``==`` and ``!=`` too: a test has no robustness), ``true``/``false``,
+        joined by ``and``/``or``/``->``/``not``. An explicit stack: a chain of ``and`` is as long
+        as the user wrote it."""
+        stack, failed = [e], False
+        while stack:
+            node = stack.pop()
+            if isinstance(node, ast.Logic):
+                stack += [node.right, node.left]
+            elif isinstance(node, ast.Not):
+                stack.append(node.arg)
+            elif isinstance(node, ast.Compare):
+                try:
+                    each(lambda side: self.number(side, allowed, context), (node.left, node.right))
+                except _Unresolved:
+                    failed = True
+            elif not isinstance(node, ast.BoolLiteral):
+                failed = True
+                if isinstance(node, (ast.InRegion, ast.Temporal, ast.Temporal2)) or (
+                        isinstance(node, ast.Name) and self.s.kinds.get(node.id, (None,))[0] == FORMULA):
+                    self.d.add("E116", "the test of `if` compares numbers at this step: a region, a formula or a "
+                               "temporal operator cannot stand there", node.span,
+                               hint="compare the values themselves, for example `if x > 0 then ... else ...`")
+                else:
+                    self.d.add("E116", "a number cannot be the test of `if`", node.span,
+                               hint="compare it, for example `if x > 0 then ... else ...`")
+        if failed:
+            raise _Unresolved
+
     def _name_in_number(self, e: ast.Name, allowed: tuple[str, ...], context: str) -> None:
         if e.id in BUILTIN_CONSTANTS:
             return
         s = self.s
+        if e.id == "dt" and s.steps_only:
+            self.d.add("E114", "`dt` is read here, but the system is a map without `dt`, which counts in steps only",
+                       e.span, hint=STEPS_ONLY_HINT)
+            raise _Unresolved
         kind = s.kinds.get(e.id, (None,))[0]
         if kind in allowed:
             s.used.add(e.id)
@@ -140,6 +178,11 @@ class Numbers:
                 raise _Unresolved
             if kind == LET and e.id not in s.lets:
                 raise _Unresolved  # reported where the let is declared
+            if kind == LET and ACTION not in allowed and e.id in s.action_lets:
+                self.d.add("E103", f"{context} cannot read the let '{e.id}': it reads the action "
+                           f"'{s.action_lets[e.id]}', which is known only while stepping", e.span,
+                           hint=ACTION_LET_HINT)
+                raise _Unresolved
             return
         if kind is not None and kind in (CONST, STATE, ACTION, LET) and kind not in allowed:
             self.d.add("E121" if context == "a constant expression" else "E103",
@@ -198,6 +241,10 @@ class Numbers:
             return int(d.value)
         seconds = d.value / 1000.0 if d.unit == "ms" else d.value
         dt = self.s.dt
+        if dt is None and self.s.steps_only:
+            self.d.add("E114", f"{what} is given in seconds, but the system is a map without `dt`, which counts in "
+                       "steps only", d.span, hint=STEPS_ONLY_HINT)
+            raise _Unresolved
         if dt is None:
             self.d.add("E114", f"{what} is given in seconds, but the system has no valid dt to convert it", d.span)
             raise _Unresolved
@@ -475,6 +522,13 @@ class Conditions:
         return self._formula_ir[name]
 
 
+#: What to do with a time in seconds (or `dt`) in a map without `dt`.
+STEPS_ONLY_HINT = "write times in steps (`deadline 200`), or give the system `dt = ...` (seconds per step)"
+#: Where a let that reads actions can be used, and where not.
+ACTION_LET_HINT = ("a let that reads actions can be used in the ode/map equations and other lets; regions, "
+                   "formulas, asap and avoid see the states only")
+
+
 def _kind_hint(name: str, kind: str, wanted: tuple[str, ...]) -> Optional[str]:
     if kind == REGION:
         return f"write `in {name}` for the condition of being in the region"
@@ -486,8 +540,6 @@ def _kind_hint(name: str, kind: str, wanted: tuple[str, ...]) -> Optional[str]:
 def _context_hint(context: str) -> Optional[str]:
     if context == "a constant expression":
         return "bounds, dt, centres, radii and settings must be constants"
-    if context.startswith("let"):
-        return "a let is a signal over states: it cannot read actions"
     if context == "a formula":
         return "formulas are over the trace of states; actions are not part of it"
     return None

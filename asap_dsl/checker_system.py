@@ -9,7 +9,7 @@ from typing import Optional
 from . import ast
 from .checker_common import (ACTION, CONST, FORMULA, INTEGRATORS, LET, REGION, STATE, SYSTEM, TASK, CheckState, _a,
                              _Unresolved, dependency_order)
-from .checker_exprs import Numbers
+from .checker_exprs import ACTION_LET_HINT, Numbers
 from .diagnostics import Span
 from .diagnostics import closest as _closest
 from .expr import compile_batched, names_in
@@ -46,7 +46,10 @@ class SystemChecks:
         for lt in sys.lets:
             self.n.declare(lt.name, LET, lt.name_span)
 
-        if not sys.dt:
+        is_map = bool(sys.dynamics) and isinstance(sys.dynamics[0], ast.Dynamics) and sys.dynamics[0].kind == "map"
+        if not sys.dt and is_map:
+            self.s.steps_only = True  # a map needs no step length: its spec counts in steps
+        elif not sys.dt:
             self.d.add("E114", f"system '{sys.name}' has no `dt = ...` (seconds per step)", sys.name_span)
         for extra in sys.dt[1:]:
             self.d.add("E119", "dt is given more than once", extra.span)
@@ -97,24 +100,30 @@ class SystemChecks:
                 lo, hi = -1.0, 1.0
             self.s.actions.append(ActionVar(a.name, len(self.s.actions), lo, hi, a.span))
 
-        # Lets: over states, constants and other lets (any order, no cycles).
+        # Lets: over states, actions, constants and other lets (any order, no cycles). A let that
+        # reads an action (itself or through another let) is known only where the actions are.
         let_decls = {lt.name: lt for lt in sys.lets if self.s.declared_here(lt.name, lt.name_span)}
         order = self._let_order(let_decls)
+        action_names = {a.name for a in self.s.actions}
         for name in order:
             lt = let_decls[name]
             try:
-                self.n.number(lt.value, (CONST, STATE, LET), f"let '{name}'")
+                self.n.number(lt.value, (CONST, STATE, ACTION, LET), f"let '{name}'")
                 self.s.lets[name] = lt.value
             except _Unresolved:
-                pass
+                continue
+            read = next((m.id if m.id in action_names else self.s.action_lets[m.id] for m in names_in(lt.value)
+                         if m.id in action_names or m.id in self.s.action_lets), None)
+            if read is not None:
+                self.s.action_lets[name] = read
         for name in self.s.lets:
-            self.n.check_domains([self.s.lets[name]], f"let '{name}'")
+            self.n.check_domains([self.s.lets[name]], f"let '{name}'", actions=name in self.s.action_lets)
 
         kind, equations, simulator, dyn_span = self.check_dynamics(sys)
         integrator = self.check_integrator(sys, kind)
         if equations:
             self.n.check_domains(equations, "the dynamics", actions=True)
-        if self.s.dt is None or kind is None:
+        if (self.s.dt is None and not self.s.steps_only) or kind is None:
             return None
         return SystemModel(sys.name, tuple(self.s.states), tuple(self.s.actions), dict(self.s.consts), dict(self.s.lets),
                            self.s.dt, kind, equations, simulator, integrator, sys.span, dyn_span)
@@ -242,6 +251,10 @@ class SystemChecks:
         kind = self.s.kinds.get(name, (None,))[0]
         if kind in (STATE, LET):
             if kind == LET and name not in self.s.lets:
+                raise _Unresolved
+            if name in self.s.action_lets:
+                self.d.add("E103", f"'{name}' is a let that reads the action '{self.s.action_lets[name]}'; a region "
+                           "is over states and lets of states", span, hint=ACTION_LET_HINT)
                 raise _Unresolved
             self.s.used.add(name)
             return

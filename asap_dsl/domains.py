@@ -18,7 +18,7 @@ from typing import Optional, Sequence
 
 from . import ast, intervals
 from .diagnostics import Span
-from .expr import BUILTIN_CONSTANTS, LetWalker, Symbols
+from .expr import BUILTIN_CONSTANTS, COMPARE_NAMES, LetWalker, Symbols
 from .intervals import Interval
 
 _UNKNOWN = Interval(-math.inf, math.inf)
@@ -126,6 +126,8 @@ class _Walker(LetWalker):
                 return self.lets[n]
             if n not in s.lets:
                 return _UNKNOWN, False
+        if isinstance(e, ast.BoolLiteral):
+            return e.value, False
         return None
 
     def _not_arithmetic(self, e) -> list:
@@ -157,6 +159,12 @@ class _Walker(LetWalker):
                 if not failing:
                     found = _check_call(e.func, vals)
                 out = intervals.FUNCTIONS[e.func](*vals)
+            elif isinstance(e, (ast.Compare, ast.Logic, ast.Not)):
+                # A test: True, False or undecided (None) over the box. Both branches of a
+                # conditional are checked over the whole box, whichever the test picks.
+                return _test(e, vals), failing
+            elif isinstance(e, ast.Conditional):
+                out = intervals.where(*vals)
             else:
                 out = _UNKNOWN
         except (ZeroDivisionError, OverflowError, ValueError):
@@ -175,6 +183,19 @@ class _Walker(LetWalker):
 
     def value(self, root) -> tuple[Interval, bool]:
         return self.walk(root)
+
+
+def _test(e, vals: list) -> intervals.Truth:
+    """The truth over the box of a conditional's test node from its operands' values."""
+    t = intervals.TESTS
+    if isinstance(e, ast.Compare):
+        return t[COMPARE_NAMES[e.op]](*vals)
+    if isinstance(e, ast.Not):
+        return t["not_"](vals[0])
+    a, b = vals
+    if e.op == "implies":
+        return t["or_"](t["not_"](a), b)
+    return t[f"{e.op}_"](a, b)
 
 
 __all__ = ["DomainChecker", "DomainIssue", "domain_issues"]

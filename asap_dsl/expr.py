@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import functools
 import math
+import operator
 from dataclasses import dataclass
 from types import SimpleNamespace
 from typing import Callable, Iterable, Mapping, Optional, Sequence
@@ -28,10 +29,13 @@ from . import ast, intervals
 FUNCTION_ARITY: dict[str, Optional[int]] = {
     "sin": 1, "cos": 1, "tan": 1, "asin": 1, "acos": 1, "atan": 1, "atan2": 2,
     "sinh": 1, "cosh": 1, "tanh": 1, "exp": 1, "log": 1, "sqrt": 1, "abs": 1,
-    "min": None, "max": None, "norm": None,
+    "min": None, "max": None, "norm": None, "clip": 3,
 }
 
 BUILTIN_CONSTANTS = {"pi": math.pi, "e": math.e}
+
+#: A comparison's operator -> the backends' name of it (``_F.lt`` ...).
+COMPARE_NAMES = {"<": "lt", "<=": "le", ">": "gt", ">=": "ge", "==": "eq", "!=": "ne"}
 
 
 def _folded(pairwise: Callable) -> Callable:
@@ -45,13 +49,28 @@ def _np_norm(*xs):
     return np.sqrt(sum(np.square(x) for x in xs))
 
 
+def _clipped(lower: Callable, upper: Callable) -> Callable:
+    """``clip(x, lo, hi)`` as ``min(max(x, lo), hi)`` with the backend's own min and max: one
+    definition, so that every backend (and the compiled step) computes the same value."""
+    return lambda x, lo, hi: lower(upper(x, lo), hi)
+
+
+def _tests(and_: Callable, or_: Callable, not_: Callable, where: Callable) -> dict:
+    """What a conditional (``if c then a else b``) computes with: comparisons (Python's operators,
+    which numpy arrays and CasADi symbols overload), ``and``/``or``/``not`` and the choice."""
+    return dict(lt=operator.lt, le=operator.le, gt=operator.gt, ge=operator.ge, eq=operator.eq, ne=operator.ne,
+                and_=and_, or_=or_, not_=not_, where=where)
+
+
 NUMPY = SimpleNamespace(
     sin=np.sin, cos=np.cos, tan=np.tan, asin=np.arcsin, acos=np.arccos, atan=np.arctan,
     atan2=np.arctan2, sinh=np.sinh, cosh=np.cosh, tanh=np.tanh, exp=np.exp, log=np.log,
     sqrt=np.sqrt, abs=np.abs, min=_folded(np.minimum), max=_folded(np.maximum), norm=_np_norm, pow=np.power,
+    clip=_clipped(np.minimum, np.maximum),
+    **_tests(np.logical_and, np.logical_or, np.logical_not, np.where),
 )
 
-INTERVAL = SimpleNamespace(**intervals.FUNCTIONS, pow=lambda a, b: intervals.Interval.of(a) ** b)
+INTERVAL = SimpleNamespace(**intervals.FUNCTIONS, **intervals.TESTS, pow=lambda a, b: intervals.Interval.of(a) ** b)
 
 
 def casadi_namespace() -> SimpleNamespace:
@@ -62,6 +81,8 @@ def casadi_namespace() -> SimpleNamespace:
         atan2=ca.atan2, sinh=ca.sinh, cosh=ca.cosh, tanh=ca.tanh, exp=ca.exp, log=ca.log,
         sqrt=ca.sqrt, abs=ca.fabs, min=_folded(ca.fmin), max=_folded(ca.fmax),
         norm=lambda *xs: ca.sqrt(sum(x * x for x in xs)), pow=lambda a, b: a ** b,
+        # Non-smooth where it switches: IPOPT sees a kink (clip) or a jump (if), see docs/oracle.md.
+        clip=_clipped(ca.fmin, ca.fmax), **_tests(ca.logic_and, ca.logic_or, ca.logic_not, ca.if_else),
     )
 
 
@@ -99,6 +120,12 @@ class LetWalker:
             return [e.left, e.right]
         if isinstance(e, ast.Call):
             return list(e.args)
+        if isinstance(e, ast.Conditional):  # the test's nodes are walked like numbers' (they are over numbers)
+            return [e.test, e.then_, e.else_]
+        if isinstance(e, (ast.Compare, ast.Logic)):
+            return [e.left, e.right]
+        if isinstance(e, ast.Not):
+            return [e.arg]
         return self._not_arithmetic(e)
 
     def _not_arithmetic(self, e: ast.Expr) -> list[ast.Expr]:
@@ -164,6 +191,8 @@ class _Gen(LetWalker):
             if n not in self.sym.lets:
                 raise KeyError(n)
             return None  # a let not emitted yet: its body first
+        if isinstance(e, ast.BoolLiteral):
+            return repr(e.value)
         return None
 
     def _combine(self, e: ast.Expr, args: list[str]) -> str:
@@ -176,6 +205,16 @@ class _Gen(LetWalker):
             if e.op == "^":
                 return self._temp(f"_F.pow({args[0]}, {args[1]})")
             return self._temp(f"{args[0]} {e.op} {args[1]}")
+        if isinstance(e, ast.Compare):
+            return self._temp(f"_F.{COMPARE_NAMES[e.op]}({args[0]}, {args[1]})")
+        if isinstance(e, ast.Logic):
+            if e.op == "implies":
+                return self._temp(f"_F.or_(_F.not_({args[0]}), {args[1]})")
+            return self._temp(f"_F.{e.op}_({args[0]}, {args[1]})")
+        if isinstance(e, ast.Not):
+            return self._temp(f"_F.not_({args[0]})")
+        if isinstance(e, ast.Conditional):
+            return self._temp(f"_F.where({args[0]}, {args[1]}, {args[2]})")
         return self._temp(f"_F.{e.func}({', '.join(args)})")
 
     def expr(self, root: ast.Expr) -> str:
@@ -268,6 +307,8 @@ _MATH = SimpleNamespace(
     **{k: _safe_math(getattr(math, k)) for k in ("sin", "cos", "tan", "asin", "acos", "atan", "atan2", "sinh", "cosh", "tanh", "exp", "log", "sqrt")},
     abs=abs, min=min, max=max, norm=lambda *xs: math.sqrt(sum(x * x for x in xs)),
     pow=_safe_math(lambda a, b: float(a) ** float(b) if not (a < 0 and not float(b).is_integer()) else math.nan),
+    clip=_clipped(min, max), **_tests(lambda a, b: a and b, lambda a, b: a or b, lambda a: not a,
+                                      lambda c, a, b: a if c else b),
 )
 
 
@@ -277,6 +318,8 @@ SCALAR = SimpleNamespace(
     **{k: getattr(math, k) for k in ("sin", "cos", "tan", "asin", "acos", "atan", "atan2", "sinh", "cosh", "tanh",
                                       "exp", "log", "sqrt")},
     abs=abs, min=min, max=max, norm=lambda *xs: math.sqrt(sum(x * x for x in xs)), pow=math.pow,
+    clip=_clipped(min, max), **_tests(lambda a, b: a and b, lambda a, b: a or b, lambda a: not a,
+                                      lambda c, a, b: a if c else b),
 )
 
 
@@ -364,6 +407,8 @@ def _children(e) -> tuple:
         return (e.left, e.right)
     if isinstance(e, ast.Call):
         return e.args
+    if isinstance(e, ast.Conditional):
+        return (e.test, e.then_, e.else_)
     return ()
 
 
@@ -386,7 +431,7 @@ def degree(e: ast.Expr, symbols: Symbols) -> float:
                 stack.append((node, True))
                 stack.append((symbols.lets[node.id], False))
             continue
-        kids = _children(node) if isinstance(node, (ast.Unary, ast.Binary, ast.Call)) else ()
+        kids = _children(node) if isinstance(node, _NUMERIC_PARENTS) else ()
         if not expanded and kids:
             stack.append((node, True))
             stack.extend((k, False) for k in reversed(kids))
@@ -394,6 +439,10 @@ def degree(e: ast.Expr, symbols: Symbols) -> float:
         args = [done.pop() for _ in kids][::-1]
         done.append(_degree_of(node, args, symbols))
     return done[0]
+
+
+#: The nodes with children that may stand in a numeric expression (a conditional's test included).
+_NUMERIC_PARENTS = (ast.Unary, ast.Binary, ast.Call, ast.Conditional, ast.Compare, ast.Logic, ast.Not)
 
 
 def _degree_of(e: ast.Expr, args: list[float], symbols: Symbols) -> float:
@@ -419,6 +468,6 @@ def _degree_of(e: ast.Expr, args: list[float], symbols: Symbols) -> float:
                 return 0
             p = evaluate_constant(e.right, symbols.consts)
             return a * p if p >= 0 and float(p).is_integer() else math.inf
-    if isinstance(e, ast.Call):
-        return 0 if all(a == 0 for a in args) else math.inf
+    if isinstance(e, (ast.Call, ast.Conditional, ast.Compare, ast.Logic, ast.Not, ast.BoolLiteral)):
+        return 0 if all(a == 0 for a in args) else math.inf  # clip and if are piecewise: not polynomial
     return math.inf

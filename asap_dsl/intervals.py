@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Union
+from typing import Optional, Union
 
 Number = Union[int, float]
 
@@ -251,8 +251,74 @@ def norm(*xs) -> Interval:
     return sqrt(total)
 
 
+def clip(x, lo, hi) -> Interval:
+    """``min(max(x, lo), hi)``, as every evaluator computes it."""
+    return min_(max_(x, lo), hi)
+
+
 FUNCTIONS = {
     "sin": sin, "cos": cos, "tan": tan, "asin": asin, "acos": acos, "atan": atan, "atan2": atan2,
     "sinh": sinh, "cosh": cosh, "tanh": tanh, "exp": exp, "log": log, "sqrt": sqrt,
-    "abs": abs_, "min": min_, "max": max_, "norm": norm,
+    "abs": abs_, "min": min_, "max": max_, "norm": norm, "clip": clip,
+}
+
+# ---------------------------------------------------------------- tests of a conditional
+# A test over boxes is True (for every point), False (for none) or None (undecided: for some).
+# NaN is outside every comparison (False), as in numpy: an enclosure that may hold NaN is the
+# whole line, over which no comparison is decided.
+Truth = Optional[bool]
+
+
+def _order(a, b, strict: bool) -> Truth:
+    """``a < b`` (``strict``) or ``a <= b`` over the boxes."""
+    a, b = Interval.of(a), Interval.of(b)
+    if any(math.isnan(v) for v in (a.lo, a.hi, b.lo, b.hi)):
+        return None
+    if (a.hi < b.lo) if strict else (a.hi <= b.lo):
+        return True
+    if (a.lo >= b.hi) if strict else (a.lo > b.hi):
+        return False
+    return None
+
+
+def _equal(a, b) -> Truth:
+    a, b = Interval.of(a), Interval.of(b)
+    if a.lo == a.hi == b.lo == b.hi and math.isfinite(a.lo):
+        return True
+    if a.hi < b.lo or b.hi < a.lo:
+        return False
+    return None
+
+
+def and_(a: Truth, b: Truth) -> Truth:
+    if a is False or b is False:
+        return False
+    return True if (a is True and b is True) else None
+
+
+def or_(a: Truth, b: Truth) -> Truth:
+    if a is True or b is True:
+        return True
+    return False if (a is False and b is False) else None
+
+
+def not_(a: Truth) -> Truth:
+    return None if a is None else not a
+
+
+def where(test: Truth, a, b) -> Interval:
+    """``if test then a else b``: the branch the test decides, else the hull of both."""
+    if test is True:
+        return Interval.of(a)
+    if test is False:
+        return Interval.of(b)
+    a, b = Interval.of(a), Interval.of(b)
+    return Interval(min(a.lo, b.lo), max(a.hi, b.hi))
+
+
+TESTS = {
+    "lt": lambda a, b: _order(a, b, True), "le": lambda a, b: _order(a, b, False),
+    "gt": lambda a, b: _order(b, a, True), "ge": lambda a, b: _order(b, a, False),
+    "eq": _equal, "ne": lambda a, b: not_(_equal(a, b)),
+    "and_": and_, "or_": or_, "not_": not_, "where": where,
 }

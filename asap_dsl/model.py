@@ -58,7 +58,7 @@ class SystemModel:
     actions: tuple[ActionVar, ...]
     consts: Mapping[str, float]
     lets: Mapping[str, ast.Expr]
-    dt: float
+    dt: Optional[float]  # seconds per step; None: a map without `dt`, whose spec counts in steps only
     kind: str  # "ode", "map" or "simulator"
     equations: tuple[ast.Expr, ...]  # right-hand sides in state order (ode/map)
     simulator: Optional[str]

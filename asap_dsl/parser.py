@@ -124,6 +124,10 @@ class _Builder(Transformer):
             out = ast.Logic(_CANONICAL[op], out, right, _join(start, right.span))
         return out
 
+    def conditional(self, meta, children):
+        test, then_, else_ = children
+        return ast.Conditional(test, then_, else_, _span(meta))
+
     def temporal1(self, meta, children):
         (op, op_span), interval, arg = children
         return ast.Temporal(_CANONICAL[op], interval, arg, _span(meta), op_span)
@@ -153,6 +157,8 @@ class _Builder(Transformer):
         if tok.type == "DURATION":
             unit = "ms" if tok.endswith("ms") else "s"
             return ast.Duration(float(tok[: -len(unit)]), unit, span)
+        if len(children) == 2:  # `200 steps`: the unit is the default one, written out
+            span = _join(span, token_span(children[1]))
         return ast.Duration(float(tok), "steps", span)
 
     def range(self, meta, children):
@@ -431,7 +437,7 @@ class _Builder(Transformer):
 
 # Parse-tree nodes that nest an expression one level deeper.
 _NESTING = frozenset({"paren", "call", "neg", "unary", "pow", "negation", "temporal1", "temporal2",
-                      "binary_logic", "compare", "arith_chain", "logic_chain"})
+                      "binary_logic", "compare", "arith_chain", "logic_chain", "conditional"})
 
 
 def _too_deep(tree: lark.Tree) -> Optional[Span]:

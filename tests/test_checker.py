@@ -323,3 +323,149 @@ def test_region_bounds_are_the_true_range_over_the_state_space(space, shape):
         assert hi <= min(b - a for a, b in zip(region.low, region.high)) / 2 + 1e-12
     else:
         assert hi <= region.radius + 1e-12
+
+
+# ---------------------------------------------------------------- lets of actions, conditionals, maps without dt
+
+ACTION_LET = """\
+system Car {
+  state p in [-2, 2] init [-1, 1]
+  state v in [-1, 1]
+  action u in [-1, 1]
+  let push = clip(2 * u, -1, 1)
+  let v_next = clip(v + 0.1 * push, -1, 1)
+  map { p = clip(p + v_next, -2, 2), v = if p + v_next <= -2 and v_next < 0 then 0 else v_next }
+}
+region goal = box(p in [1, 2])
+task t { asap in goal  deadline 50 }
+"""
+
+
+def test_a_let_may_read_actions_in_the_dynamics():
+    prog = asap_dsl.loads(ACTION_LET)
+    f = prog.system.rhs
+    s = np.array([[0.0, 0.5], [-1.9, -0.5], [1.95, 0.9]])
+    a = np.array([[0.3], [-1.0], [1.0]])
+    want = []
+    for (p, v), (u,) in zip(s, a):
+        vn = min(max(v + 0.1 * min(max(2 * u, -1), 1), -1), 1)
+        want.append([min(max(p + vn, -2), 2), 0.0 if p + vn <= -2 and vn < 0 else vn])
+    np.testing.assert_array_equal(f(s, a), np.array(want))
+
+
+def test_a_let_of_actions_is_evaluated_at_every_rk4_stage():
+    base = ("system Osc {{ state x in [-5, 5]  action u in [-1, 1]  {let}  dt = 0.1  integrator rk4(substeps = 3)  "
+            "ode {{ x' = {rhs} }} }}\nregion g = ball([1], 0.1)\ntask t {{ asap in g  deadline 5 }}")
+    with_let = asap_dsl.loads(base.format(let="let f = u * x - sin(x)", rhs="f"))
+    inline = asap_dsl.loads(base.format(let="", rhs="u * x - sin(x)"))
+    from asap_dsl.dynamics import numpy_step
+
+    s, a = np.array([[0.3], [-2.0]]), np.array([[0.7], [-0.2]])
+    np.testing.assert_array_equal(numpy_step(with_let.system)(s, a), numpy_step(inline.system)(s, a))
+
+
+@pytest.mark.parametrize("use, needle", [
+    ("task t2 { asap push > 0  deadline 5 }", "push"),                               # a formula
+    ("task t2 { asap in goal  avoid v_next < -0.5  deadline 5 }", "v_next"),          # avoid
+    ("region r = box(push in [0, 1])\ntask t2 { asap in r  deadline 5 }", "push"),    # a region
+    ("formula f = v + (if u > 0 then 1 else 0) > 0\ntask t2 { asap f  deadline 5 }", "u > 0"),  # an action itself
+])
+def test_a_let_of_actions_where_only_states_are_seen_is_an_error(use, needle):
+    src = ACTION_LET + use + "\n"
+    errors = [d for d in diagnostics(src) if d.severity == "error"]
+    assert [d.code for d in errors] == ["E103"], errors
+    d = errors[0]
+    assert (d.line, d.column) == position(src, needle, src.count(needle) - 1)
+    assert "action" in d.message
+
+
+def test_a_let_of_actions_error_names_the_action():
+    d = [d for d in diagnostics(ACTION_LET + "task t2 { asap v_next > 0  deadline 5 }\n") if d.severity == "error"][0]
+    assert "let 'v_next': it reads the action 'u'" in d.message
+    assert "ode/map equations" in d.hint
+
+
+@pytest.mark.parametrize("test, message", [
+    ("x", "a number cannot be the test of `if`"),
+    ("in goal", "a region, a formula or a temporal operator"),
+    ("once x > 0", "a region, a formula or a temporal operator"),
+])
+def test_the_test_of_if_compares_numbers(test, message):
+    src = BASE.replace("y' = u", f"y' = if {test} then u else -u")
+    errors = [d for d in diagnostics(src) if d.severity == "error"]
+    assert [d.code for d in errors] == ["E116"] and message in errors[0].message
+    line, col = position(src, f"if {test}")
+    assert (errors[0].line, errors[0].column) == (line, col + 3)
+
+
+def test_conditional_branches_are_numbers_and_functions_are_checked():
+    assert "E116" in [d.code for d in diagnostics(BASE.replace("y' = u", "y' = if x > 0 then x < 1 else u"))]
+    diags = diagnostics(BASE.replace("y' = u", "y' = clip(u, 1)"))
+    assert [d.code for d in diags] == ["E104"] and "clip() takes 3 arguments, given 2" in diags[0].message
+
+
+STEPS_MAP = """\
+system Walk {
+  state x in [-10, 10] init [0, 0]
+  action u in [-1, 1]
+  map { x = x + u }
+}
+region goal = box(x in [5, 10])
+task t { asap in goal  deadline 20 steps }
+"""
+
+
+def test_a_map_needs_no_dt_and_counts_in_steps():
+    prog = asap_dsl.loads(STEPS_MAP)
+    assert prog.system.dt is None and prog.task("t").deadline == 20
+    env = asap_dsl.make_vec_env(prog, "t", num_envs=2, seed=0)
+    env.reset()
+    env.step_arrays(np.ones((2, 1)))
+    np.testing.assert_array_equal(env.core.states, [[1.0], [1.0]])
+
+
+@pytest.mark.parametrize("edit_, needle", [
+    (("deadline 20 steps", "deadline 2s"), "2s"),
+    (("deadline 20 steps", "deadline 20  tolerances 500ms"), "500ms"),
+    (("x = x + u", "x = x + u * dt"), "dt }"),
+    (("task t {", "formula f = once[0, 1s] x > 0\ntask t {"), "1s"),
+])
+def test_seconds_in_a_map_without_dt_are_an_error(edit_, needle):
+    src = edit(STEPS_MAP, *edit_)
+    errors = [d for d in diagnostics(src) if d.severity == "error"]
+    assert [d.code for d in errors] == ["E114"], errors
+    assert "map without `dt`" in errors[0].message and "deadline 200" in errors[0].hint
+    assert (errors[0].line, errors[0].column) == position(src, needle)
+
+
+def test_an_ode_still_needs_dt():
+    errors = [d for d in diagnostics(BASE.replace("  dt = 0.1\n", "")) if d.severity == "error"]
+    assert [d.code for d in errors] == ["E114"] and "has no `dt = ...`" in errors[0].message
+
+
+def test_map_right_hand_sides_read_the_old_state():
+    swap = ("system Swap { state x in [-5, 5]  state y in [-5, 5]  action u in [-1, 1]\n"
+            "  map { x = y, y = x + u } }\nregion g = ball([1, 1], 0.5)\ntask t { asap in g  deadline 5 }\n")
+    prog = asap_dsl.loads(swap)
+    np.testing.assert_array_equal(prog.system.rhs(np.array([[1.0, 2.0]]), np.array([[0.5]])), [[2.0, 1.5]])
+    env = asap_dsl.make_vec_env(prog, "t", num_envs=1, seed=0)
+    env.reset()
+    env.core.states[:] = [[1.0, 2.0]]
+    env.core.sim.reset(env.core.states.copy())
+    env.step_arrays(np.array([[0.0]]))
+    np.testing.assert_array_equal(env.core.states, [[2.0, 1.0]])
+
+
+def test_show_of_a_map_without_dt_prints_steps_only(tmp_path, capsys):
+    import json
+
+    from conftest import asapc
+
+    f = tmp_path / "walk.asap"
+    f.write_text(STEPS_MAP)
+    code, out, _ = asapc(capsys, "show", str(f))
+    assert code == 0 and "no dt (times in steps)" in out and "deadline       20 steps\n" in out
+    assert " s)" not in out and "dt =" not in out
+    code, out, _ = asapc(capsys, "show", "--format", "json", str(f))
+    data = json.loads(out)
+    assert data["system"]["dt"] is None and data["tasks"]["t"]["deadline_seconds"] is None

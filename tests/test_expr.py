@@ -50,6 +50,7 @@ PY = {
     "min": ("min(x, y, z)", lambda x, y, z: min(x, y, z), (-3, 3)),
     "max": ("max(x, y)", lambda x, y, z: max(x, y), (-3, 3)),
     "norm": ("norm(x, y, z)", lambda x, y, z: math.sqrt(x * x + y * y + z * z), (-3, 3)),
+    "clip": ("clip(x, y - 1, y + 1)", lambda x, y, z: min(max(x, y - 1), y + 1), (-3, 3)),
 }
 OPS = {
     "add": ("x + y", lambda x, y, z: x + y, (-3, 3)),
@@ -65,6 +66,12 @@ OPS = {
     "nested": ("sin(x) * cos(y) + exp(-z^2) / (1 + x^2)",
                lambda x, y, z: math.sin(x) * math.cos(y) + math.exp(-z ** 2) / (1 + x ** 2), (-3, 3)),
     "consts": ("pi * x + e", lambda x, y, z: math.pi * x + math.e, (-3, 3)),
+    # Conditionals: tests of comparisons joined by and/or/not/->, nested, inside arithmetic.
+    "if": ("if x > y and not (z <= 0) or x == 1 then x - y else clip(z, -1, 1) * y",
+           lambda x, y, z: x - y if (x > y and not z <= 0) or x == 1 else min(max(z, -1), 1) * y, (-3, 3)),
+    "if_nested": ("1 + (if x < 0 then -x else if y >= z -> x != y then y ^ 2 else 0)",
+                  lambda x, y, z: 1 + (-x if x < 0 else (y ** 2 if (not y >= z) or x != y else 0)), (-3, 3)),
+    "if_constant": ("if 1 < 2 then x else y", lambda x, y, z: x, (-3, 3)),
 }
 CASES = {**PY, **OPS}
 
@@ -154,6 +161,21 @@ def test_division_by_interval_containing_zero(text, box):
     _sound(text, [box, (1, 2), (1, 2)], pts)
 
 
+@pytest.mark.parametrize("text, box, expected", [
+    ("if x > 2 then x else -x", [(3, 4), (0, 1), (0, 1)], (3.0, 4.0)),       # decided: the then branch
+    ("if x > 2 then x else -x", [(0, 1), (0, 1), (0, 1)], (-1.0, 0.0)),      # decided: the else branch
+    ("if x > 2 then x else -x", [(1, 4), (0, 1), (0, 1)], (-4.0, 4.0)),      # undecided: the hull of both
+    ("if x > 0 and y < 0 then 1 else 2", [(1, 2), (2, 3), (0, 1)], (2.0, 2.0)),
+    ("if x > 0 or y < 0 then 1 else 2", [(1, 2), (-1, 3), (0, 1)], (1.0, 1.0)),
+    ("if not (x <= y) then 1 else 2", [(0, 1), (2, 3), (0, 1)], (2.0, 2.0)),
+    ("clip(x, -1, 1)", [(-5, 0.5), (0, 1), (0, 1)], (-1.0, 0.5)),
+    ("clip(x, y, z)", [(-5, 5), (0, 1), (2, 3)], (0.0, 3.0)),
+])
+def test_interval_conditional_and_clip(text, box, expected):
+    enc = interval_range(parse_expr(text), SYMBOLS, box)
+    assert (enc.lo, enc.hi) == expected
+
+
 def test_interval_arithmetic_operators():
     a, b = Interval(-1, 2), Interval(3, 4)
     assert a + b == Interval(2, 6) and a - b == Interval(-5, -1) and -a == Interval(-2, 1)
@@ -169,7 +191,9 @@ def test_variable_exponent_with_negative_base_is_sound():
 
 
 @pytest.mark.parametrize("text, deg", [("x + y", 1), ("k * x - 3", 1), ("x * y", 2), ("x ^ 2", 2), ("sin(x)", math.inf),
-                                        ("x / k", 1), ("x / y", math.inf), ("sin(k) * x", 1), ("2", 0)])
+                                        ("x / k", 1), ("x / y", math.inf), ("sin(k) * x", 1), ("2", 0),
+                                        ("clip(x, 0, 1)", math.inf), ("if x > 0 then x else 2 * x", math.inf),
+                                        ("(if k > 1 then 3 else 4) * x", 1)])
 def test_degree(text, deg):
     assert degree(parse_expr(text), SYMBOLS) == deg
 

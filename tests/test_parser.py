@@ -360,3 +360,42 @@ def test_reward_settings_take_times():
     assert prog.task("t").reward.params["window"] == 10
     found = diagnostics(BASE.replace("dt = 0.1", "dt = 0.1\n  integrator rk4(substeps = 2s)"))
     assert [(d.code, "substeps takes a number, not a time" in d.message) for d in found if d.is_error] == [("E117", True)]
+
+
+# ---------------------------------------------------------------- conditionals and the unit `steps`
+
+def test_conditional_parses_as_the_loosest_expression():
+    src = "system P { let w = if x > 0 and y <= 1 then -x else if y == 2 then clip(y, 0, 1) else 3 }"
+    module, diags = parser.parse(src)
+    e = module.systems[0].lets[0].value
+    assert not diags and isinstance(e, ast.Conditional)
+    assert isinstance(e.test, ast.Logic) and e.test.op == "and"
+    assert isinstance(e.then_, ast.Unary) and isinstance(e.else_, ast.Conditional)
+    assert e.else_.test.op == "==" and e.else_.then_.func == "clip"
+    # Inside arithmetic it is written in parentheses; the else branch takes what follows it.
+    inner = parser.parse("system P { let w = 1 + (if x > 0 then 2 else 3) * 4 }")[0].systems[0].lets[0].value
+    assert inner.op == "+" and isinstance(inner.right.left, ast.Conditional)
+    greedy = parser.parse("system P { let w = if x > 0 then 2 else 3 + 4 }")[0].systems[0].lets[0].value
+    assert isinstance(greedy, ast.Conditional) and greedy.else_.op == "+"
+    assert e.span == ast.Span(1, src.index("if") + 1, 1, src.index("3 }") + 2)
+
+
+def test_if_then_else_are_reserved():
+    assert {"if", "then", "else"} <= set(parser.keywords())
+    for word in ("if", "then", "else"):
+        diags = diagnostics(BASE.replace("  dt = 0.1", f"  const {word} = 1\n  dt = 0.1"))
+        assert [d.code for d in diags] == ["E001"] and f"'{word}' is a reserved word" in diags[0].hint
+
+
+@pytest.mark.parametrize("written, steps", [("deadline 200 steps", 200), ("deadline 1 step", 1), ("deadline 30", 30)])
+def test_deadline_in_steps_with_the_unit_written_out(written, steps):
+    prog = asap_dsl.loads(BASE.replace("deadline 30", written + "\n  tolerances 1 steps, 1\n  episode 1 steps..1"))
+    assert prog.task("t").deadline == steps and prog.task("t").tolerances == (1, 1)
+    assert node("eventually[0 steps, 3 steps] p").interval == ir.Interval(0, 3)
+
+
+def test_steps_stays_a_name_where_no_number_precedes_it():
+    prog = asap_dsl.loads(BASE.replace("deadline 30", "deadline 30 steps\n  train { steps = 4000 }"))
+    assert prog.task("t").train["steps"] == 4000
+    diags = diagnostics(BASE.replace("asap in goal", "asap in goal\n  steps"))
+    assert [d.code for d in diags] == ["E119"]  # a lone word, as before

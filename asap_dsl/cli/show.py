@@ -81,7 +81,7 @@ def show_data(prog: Program, only_task: Optional[str] = None) -> dict:
             "specification": _formula_text(t.spec),
             "horizon_steps": _steps(ir.horizon(t.spec)),
             "deadline_steps": t.deadline,
-            "deadline_seconds": t.deadline * sys_.dt,
+            "deadline_seconds": None if sys_.dt is None else t.deadline * sys_.dt,
             "tolerances": list(t.tolerances),
             "episode": list(t.episode),
             "reward": t.reward.text,
@@ -148,7 +148,7 @@ def show_command(args: argparse.Namespace) -> int:
         return 0
     s = data["system"]
     out = [f"{prog.file}", "", f"system {s['name']}: {s['dynamics']}" + (f", integrator {s['integrator']}" if s["integrator"] else "")
-           + f", dt = {number(s['dt'])} s"]
+           + (f", dt = {number(s['dt'])} s" if s["dt"] is not None else ", no dt (times in steps)")]
     if s["constants"]:
         out.append("  constants: " + ", ".join(f"{k} = {number(v)}" for k, v in s["constants"].items()))
     out.append("")
@@ -173,7 +173,8 @@ def show_command(args: argparse.Namespace) -> int:
                     "  init           box(" + ", ".join(f"{x['name']} in [{number(lo)}, {number(hi)}]"
                                                      for x, (lo, hi) in zip(s["states"], t["init"])) + ")"]),
                 f"  horizon        {number(t['horizon_steps'])} steps",
-                f"  deadline       {t['deadline_steps']} steps ({number(t['deadline_seconds'])} s)",
+                f"  deadline       {t['deadline_steps']} steps"
+                + ("" if t["deadline_seconds"] is None else f" ({number(t['deadline_seconds'])} s)"),
                 f"  tolerances     {', '.join(map(str, t['tolerances']))}",
                 f"  episode        {t['episode'][0]}..{t['episode'][1]} steps",
                 f"  reward         {t['reward']}",

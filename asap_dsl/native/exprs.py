@@ -115,6 +115,8 @@ class _NumbaGen(_Gen):
                 for x in args[1:]:
                     acc = self._temp((mn if f == "min" else mx)(acc, x))
                 return acc
+            if f == "clip":  # np.minimum(np.maximum(x, lo), hi), as asap_dsl.expr defines it
+                return self._temp(mn(self._temp(mx(args[0], args[1])), args[2]))
             if f == "norm":  # np.sqrt(sum(np.square(x) for x in xs)): left to right
                 sq = [self._temp(f"{x} * {x}") for x in args]
                 acc = sq[0]
@@ -122,6 +124,17 @@ class _NumbaGen(_Gen):
                     acc = self._temp(f"{acc} + {x}")
                 return self._temp(f"math.sqrt({acc})")
             raise NotCovered(f"the function {f}")
+        # A conditional and its test: Python's comparisons and `and`/`or`/`not` on floats are
+        # numpy's elementwise ones (NaN compares False); np.where is the choice.
+        if isinstance(e, ast.Compare):
+            return self._temp(f"{args[0]} {e.op} {args[1]}")
+        if isinstance(e, ast.Logic):
+            a, b = args
+            return self._temp(f"(not {a}) or {b}" if e.op == "implies" else f"{a} {e.op} {b}")
+        if isinstance(e, ast.Not):
+            return self._temp(f"not {args[0]}")
+        if isinstance(e, ast.Conditional):
+            return self._temp(f"{args[1]} if {args[0]} else {args[2]}")
         return super()._combine(e, args)
 
     def _power(self, a: str, b: str) -> str:

@@ -63,6 +63,11 @@ def _swimmer(batch: int = 1):
 register_simulator("mujoco:swimmer", _swimmer)
 
 
+def _seconds(system: SystemModel) -> Optional[float]:
+    """The system's ``dt`` as a float; None for a map without ``dt`` (its spec counts in steps)."""
+    return None if system.dt is None else float(system.dt)
+
+
 class OdeSimulator:
     """An ``ode`` or ``map`` system, discretised by :func:`asap_dsl.dynamics.numpy_step`."""
 
@@ -71,7 +76,7 @@ class OdeSimulator:
     def __init__(self, system: SystemModel, batch: int = 1):
         self.system = system
         self._step = numpy_step(system)
-        self.state_dim, self.action_dim, self.dt = system.n_state, system.n_action, float(system.dt)
+        self.state_dim, self.action_dim, self.dt = system.n_state, system.n_action, _seconds(system)
         self.batch = int(batch)
         self.states = np.zeros((self.batch, self.state_dim))
 
@@ -100,7 +105,7 @@ class CheckedSimulator:
     def __init__(self, inner: Any, system: SystemModel, batch: int, file: Optional[str] = None, user: bool = False):
         self.inner, self.system, self.batch, self.user = inner, system, int(batch), user
         self.where = _where(system, file)
-        self.state_dim, self.action_dim, self.dt = system.n_state, system.n_action, float(system.dt)
+        self.state_dim, self.action_dim, self.dt = system.n_state, system.n_action, _seconds(system)
         self.action_low, self.action_high = system.action_low, system.action_high
         self.supports_mask = bool(getattr(inner, "supports_mask", False))
         self._check_attributes()
@@ -118,7 +123,8 @@ class CheckedSimulator:
             if not callable(getattr(inner, a)):
                 raise self._fail(f"{a} is not callable")
         try:
-            sd, ad, dt = int(inner.state_dim), int(inner.action_dim), float(inner.dt)
+            sd, ad = int(inner.state_dim), int(inner.action_dim)
+            dt = None if self.system.dt is None else float(inner.dt)  # None: a map that counts in steps
         except (TypeError, ValueError) as err:
             raise self._fail(f"state_dim, action_dim and dt must be numbers ({err})") from None
         if sd != self.system.n_state:
@@ -127,7 +133,7 @@ class CheckedSimulator:
         if ad != self.system.n_action:
             raise self._fail(f"its action_dim is {ad} but the system declares {self.system.n_action} action(s) "
                              f"({', '.join(self.system.action_names)})")
-        if not np.isclose(dt, self.system.dt, rtol=1e-9, atol=1e-12):
+        if dt is not None and not np.isclose(dt, self.system.dt, rtol=1e-9, atol=1e-12):
             raise self._fail(f"its dt is {dt:g} s but the spec says dt = {self.system.dt:g}")
 
     def _check_out(self, out: Any, call: str) -> np.ndarray:
