@@ -356,15 +356,20 @@ def deadline_checks(prog: Program, samples: int = 16, seconds: float = 60.0,
             continue
         decided = [b for b in bad if b[1] != "timeout"]
         undecided = [b for b in bad if b[1] == "timeout"]
-        for group, says in ((decided, "cannot fulfil"), (undecided, "were not shown to fulfil")):
+        # A search that ran out of time proved nothing: its hint is more time, not another spec.
+        more = max(4 * seconds, 60.0)
+        for group, says, hint in (
+                (decided, "cannot fulfil", "enlarge the deadline or the action bounds, or shrink the init box"),
+                (undecided, "were not shown to fulfil",
+                 f"the search ran out of its {seconds:g} s for the task before deciding: give it more with "
+                 f"`asapc lint --deep --deep-seconds {more:g}`, or run `asapc oracle` on the spec")):
             if not group:
                 continue
             state, _, reason = group[0]
             shown = ", ".join(f"{n}={v:.3g}" for n, v in zip(prog.system.state_names, state))
             out.append(make("W208", f"{len(group)} of {samples} sampled initial states of task '{name}' {says} "
                             f"`asap` within the deadline of {task.deadline:,} steps, e.g. from {shown} ({reason})",
-                            task.clause_spans["deadline"], prog.file,
-                            hint="enlarge the deadline or the action bounds, or shrink the init box"))
+                            task.clause_spans["deadline"], prog.file, hint=hint))
     return out, skipped
 
 

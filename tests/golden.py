@@ -17,7 +17,10 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parent.parent
 GOLDEN = ROOT / "tests" / "data" / "golden"
 
-FILES = sorted(str(p.relative_to(ROOT)) for d in ("specs", "examples") for p in (ROOT / d).glob("*.asap"))
+#: The specs and examples the outputs were recorded for (a file added since, such as
+#: examples/mountain_car.asap, has tests of its own: recording it here would re-record).
+FILES = ["examples/broken.asap", "examples/double_integrator.asap", "specs/attitude.asap", "specs/bicycle.asap",
+         "specs/dc_motor.asap", "specs/swimmer.asap"]
 
 
 def commands() -> list[list[str]]:

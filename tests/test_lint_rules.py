@@ -213,3 +213,16 @@ def test_an_asap_that_can_never_hold_is_an_error_and_an_or_needs_every_branch_im
     assert "E125" in codes(BASE.replace("asap in goal", "asap (in goal and in unsafe) or (in unsafe and in goal)"))
     assert "E125" not in codes(BASE.replace("asap in goal", "asap (in goal and in unsafe) or in goal"))
     assert "E125" not in codes(BASE.replace("asap in goal", "asap once[0, 3] in goal and in unsafe"))
+
+
+def test_w208_after_a_search_that_ran_out_of_time_names_deep_seconds():
+    """The mountain car's oracle needs seconds per state: in 1 s for the task the search decides
+    nothing, and the hint is more time (issue 20), not a larger deadline."""
+    from asap_dsl.lint import deadline_checks
+
+    prog = asap_dsl.load(DOCS.parents[1] / "examples" / "mountain_car.asap")
+    warnings, skipped = deadline_checks(prog, samples=2, seconds=1.0)
+    assert not skipped and [w.code for w in warnings] == ["W208"]
+    w = warnings[0]
+    assert "were not shown to fulfil" in w.message and "no way found in" in w.message
+    assert "--deep-seconds 60" in w.hint and "enlarge the deadline" not in w.hint

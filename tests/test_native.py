@@ -116,6 +116,25 @@ def test_every_reward_agrees(path, task, reward):
     agree(asap_dsl.load(path), task, n=3, steps=100, reward=reward, exact=path.stem in EXACT)
 
 
+def test_lets_of_actions_clip_and_conditionals_agree_exactly():
+    # The mountain car: lets reading the action, clip, and the wall's `if`; started at the wall
+    # too, moving left, so that the conditional's both branches are taken.
+    text = (EXAMPLES / "mountain_car.asap").read_text()
+    assert agree(asap_dsl.loads(text, "mountain_car.asap"), "reach", n=4, steps=210) >= 4
+    wall = text.replace("init [-0.6, -0.4]", "init [-1.2, -1.15]").replace("init [0, 0]", "init [-0.07, 0]")
+    prog = asap_dsl.loads(wall, "wall.asap")
+    assert agree(prog, "reach", n=4, steps=40) == 0
+    for engine in ("numpy", "native"):
+        env = make_vec_env(prog, "reach", num_envs=2, seed=0, engine=engine)
+        env.reset()
+        env.core.states[:] = [[-1.19, -0.07], [-1.19, 0.01]]
+        if engine == "numpy":
+            env.core.sim.reset(env.core.states.copy())
+        env.step_arrays(np.full((2, 1), -1.0))
+        assert env.core.states[0].tolist() == [-1.2, 0.0]  # stopped at the wall
+        assert env.core.states[1, 1] > 0.0
+
+
 def test_black_box_simulator_keeps_its_stepping_with_the_rest_compiled():
     prog = asap_dsl.load(SPECS / "swimmer.asap")
     for reward in (None, "rho"):
@@ -141,14 +160,21 @@ def test_failure_reward_and_non_finite_states():
 
 
 # ---- fuzzed specs -------------------------------------------------------------------------------
-# Only operations numpy computes as numba does (sin, cos, sqrt, abs, min, max, norm, powers 2 and
-# 0.5): the agreement must then be exact, every decision included.
+# Only operations numpy computes as numba does (sin, cos, sqrt, abs, min, max, norm, clip, powers 2
+# and 0.5, conditionals): the agreement must then be exact, every decision included.
 
 def _expr(draw, names, depth=0):
     if depth > 2 or draw(st.booleans()):
         return draw(st.sampled_from(names + ["0.5", "1", "2", "pi"]))
-    kind = draw(st.sampled_from(["bin", "bin", "fn", "pow", "neg", "var"]))
+    kind = draw(st.sampled_from(["bin", "bin", "fn", "pow", "neg", "var", "clip", "if"]))
     a = _expr(draw, names, depth + 1)
+    if kind == "clip":
+        return f"clip({a}, {_expr(draw, names, depth + 1)}, {_expr(draw, names, depth + 1)})"
+    if kind == "if":
+        b, c = _expr(draw, names, depth + 1), _expr(draw, names, depth + 1)
+        op = draw(st.sampled_from(["<", "<=", ">", ">=", "==", "!="]))
+        join = draw(st.sampled_from(["", f" and not ({b} < 0)", f" or {a} > 1"]))
+        return f"(if {a} {op} {b}{join} then {b} else {c})"
     if kind == "neg":
         return f"-({a})"
     if kind == "pow":
@@ -194,12 +220,13 @@ def specs(draw):
     lines += [f"  state {x} in [-4, 4] init [-1.5, 1.5]" for x in xs]
     lines += [f"  action {u} in [-1, 1]" for u in us]
     lines.append(f"  let s = {_expr(draw, xs)}")
+    lines.append(f"  let w = {_expr(draw, xs + us + ['s'])}")  # a let that may read actions
     lines.append("  dt = 0.1")
     if kind != "map":
         lines.append(f"  integrator {kind}(substeps = {draw(st.integers(1, 3))})")
     lines.append("  ode {" if kind != "map" else "  map {")
     for i, x in enumerate(xs):
-        rhs = f"{_expr(draw, xs + us + ['s'])} + {us[i % m]}"
+        rhs = f"{_expr(draw, xs + us + ['s', 'w'])} + {us[i % m]}"
         lines.append(f"    {x}{chr(39) if kind != 'map' else ''} = {x if kind == 'map' else '0'} + {rhs}")
     lines += ["  }", "}"]
     centre = ", ".join(draw(st.sampled_from(["0", "0.5", "-0.5", "1"])) for _ in xs)

@@ -501,3 +501,22 @@ def test_the_normal_form_is_typed_records():
     neg = normal(prog.task("reach").model.asap, 5, positive=False)  # not historically: once not
     assert isinstance(neg, AnyOf) and len(dnf(neg)) == 3 and not any(lit.positive for c in dnf(neg) for lit in c)
     assert dnf(Constant(True)) == [[]] and dnf(Constant(False)) == []
+
+
+GEAR = """\
+system Gear {
+  state x in [-5, 5] init [-3, -3]
+  action u in [-1, 1]
+  let gear = if x < 0 then 2 else 1      # a let of states in the map, switching on the way
+  map { x = clip(x + gear * u, -5, 5) }
+}
+task up { asap x >= 2  deadline 10 }
+"""
+
+
+@pytest.mark.parametrize("x0, steps", [(-3.0, 3), (-4.5, 4), (-0.5, 2), (0.5, 2), (4.9, 0)])
+def test_oracle_through_a_conditional_and_clip(x0, steps):
+    """The NLP sees if_else and fmin/fmax (non-smooth): the minimum times are still found here,
+    where the switch is crossed once on the way (-3 -> -1 -> 1 -> 2 takes 3 steps, not 5)."""
+    r = O.Oracle(asap_dsl.loads(GEAR), "up", time_limit=10.0).solve([x0])
+    assert r.status == "solved" and r.verified and r.steps == steps
