@@ -304,7 +304,7 @@ def _info(rho: float, satisfied: bool, t_reach: int, end: int, t: int) -> dict:
 class AsapEnv(gym.Env):
     """One episode at a time (a batch of one); see the module docstring for the rules."""
 
-    metadata = {"render_modes": []}
+    metadata = {"render_modes": ["rgb_array", "human"]}  # asap_dsl.render draws the frames
 
     def __init__(self, program, task: Optional[str] = None, reward: Any = None, seed: Optional[int] = None,
                  failure_reward: Optional[float] = None, render_mode: Optional[str] = None,
@@ -316,6 +316,12 @@ class AsapEnv(gym.Env):
         self.observation_space = self.core.observation_space
         self.action_space = self.core.action_space
         self.render_mode = render_mode
+        self._renderer = None
+        if render_mode is not None:
+            from .render import make_renderer
+
+            self._renderer = make_renderer(program, self.task.name, render_mode)  # RenderError: why not
+            self.metadata = {**self.metadata, "render_fps": self._renderer.fps}
         self._first_seed = seed
         self.spec_file = program.file
 
@@ -325,11 +331,30 @@ class AsapEnv(gym.Env):
         super().reset(seed=seed)
         self.core.rng = self.np_random
         obs = self.core.reset_all()
+        if self.render_mode == "human":
+            self.render()
         return obs[0], infos(self.core)[0]
 
     def step(self, action):
         obs, r, term, trunc, _, _ = self.core.step(np.asarray(action, dtype=np.float64)[None])
+        if self.render_mode == "human":
+            self.render()
         return obs[0], float(r[0]), bool(term[0]), bool(trunc[0]), infos(self.core)[0]
+
+    def render(self):
+        """The current state as an RGB array (``rgb_array``), or shown in a window (``human``);
+        None without a render mode (gymnasium's contract)."""
+        if self._renderer is None:
+            return None
+        state, t = self.core.states[0], int(self.core.t[0])
+        if self.render_mode == "human":
+            return self._renderer.show(state, t)
+        return self._renderer.frame(state, t)
+
+    def close(self) -> None:
+        if self._renderer is not None:
+            self._renderer.close()
+            self._renderer = None
 
 
 def _vec_base():
@@ -416,7 +441,8 @@ def make_env(prog_or_path, task: Optional[str] = None, reward: Any = None, seed:
         ``reward`` clause writes it; ValueError, one sentence, for a bad one)
     :param seed: seeds the first ``reset`` (later resets continue its random stream)
     :param kw: ``failure_reward``, a constant for the failure step instead of the reward's
-        floor; ``render_mode`` (gymnasium's; nothing is rendered); ``engine``, what steps the
+        floor; ``render_mode``, ``"rgb_array"`` or ``"human"`` (:mod:`asap_dsl.render`: MuJoCo's
+        offscreen renderer for the swimmer, a state-space frame otherwise); ``engine``, what steps the
         episodes: ``"native"`` (compiled, :mod:`asap_dsl.native`), ``"numpy"`` or ``"auto"``
         (compiled where that covers the task; None: ``$ASAP_ENGINE``, else auto)
     :return: the environment (observations float32, actions clipped to the action bounds)

@@ -1,6 +1,7 @@
-"""``asapc eval RUN [--episodes N] [--tolerances 30,25] [--seed S] [--format json] [--plot [PATH]]``:
-the success rates of a trained run beside the oracle's ceiling, and with ``--plot`` a picture of
-example trajectories in the state space (:mod:`asap_dsl.backends.compare.phase_plots`).
+"""``asapc eval RUN [--episodes N] [--tolerances 30,25] [--seed S] [--format json] [--plot [PATH]]
+[--video FILE]``: the success rates of a trained run beside the oracle's ceiling, with ``--plot`` a
+picture of example trajectories in the state space (:mod:`asap_dsl.backends.compare.phase_plots`),
+with ``--video`` an MP4 of the first evaluation states (:mod:`asap_dsl.render`).
 
 The numbers come from :func:`asap_dsl.backends.rl.evaluation.evaluate`; this module reads flags
 and prints. Exit status: 0 done, 1 a problem with the spec or the run directory, 2 a bad flag
@@ -12,6 +13,7 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+import time
 from typing import Optional, TextIO
 
 from ..runfiles import shown
@@ -36,21 +38,38 @@ def fill_eval_subparser(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--plot", nargs="?", const="", default=None, metavar="PATH",
                    help="draw example trajectories in the state space beside the oracle's, as a PNG "
                         "(default: RUN/plots/trajectories.png)")
+    p.add_argument("--video", metavar="FILE", default=None,
+                   help="write an MP4 of the policy from the first 3 evaluation states (MuJoCo's renderer "
+                        "for the swimmer, the state-space picture otherwise)")
     p.set_defaults(func=eval_command)
     return p
 
 
-def eval_command(args: argparse.Namespace, out: Optional[TextIO] = None) -> int:
+def eval_command(args: argparse.Namespace, out: Optional[TextIO] = None, err: Optional[TextIO] = None) -> int:
     """Evaluate the run (the oracle's ceiling computed unless cached or ``--no-oracle``) and print
-    the table or the JSON on ``out`` (standard output by default)."""
+    the table or the JSON on ``out`` (standard output by default); while the oracle computes, its
+    progress goes to ``err`` (standard error), as ``asapc oracle``'s does."""
     from asap_dsl.backends.rl.evaluation import evaluate
     from asap_dsl.runs import RunError, RunWriteError
 
-    out = out or sys.stdout
+    from .oracle import _Progress
+
+    out, err = out or sys.stdout, err or sys.stderr
     n_workers = workers(args)
+    progress = _Progress(err, "ceiling", args.episodes)
+
+    def started() -> None:  # a line on any stream (a log too), then the live count on a terminal
+        err.write(f"computing the oracle's ceiling on {args.episodes:,} states (not cached; --no-oracle skips it) ...\n")
+        err.flush()
+        progress.start = time.perf_counter()
+
     try:
-        ev = evaluate(args.run, episodes=args.episodes, tolerances=args.tolerances, seed=args.seed, spec=args.spec,
-                      oracle="cache" if args.no_oracle else "auto", workers=n_workers)
+        try:
+            ev = evaluate(args.run, episodes=args.episodes, tolerances=args.tolerances, seed=args.seed, spec=args.spec,
+                          oracle="cache" if args.no_oracle else "auto", workers=n_workers, progress=progress,
+                          started=started)
+        finally:
+            progress.close()
     except RunWriteError as e:  # evaluated, but eval.json could not be stored: shown, then said
         if getattr(e, "evaluation", None) is not None:
             out.write(e.evaluation.render() + "\n")
@@ -67,15 +86,28 @@ def eval_command(args: argparse.Namespace, out: Optional[TextIO] = None) -> int:
             plot = plot_run(args.run, args.plot or None, episodes=args.episodes, seed=args.seed, spec=args.spec)
         except RunError as e:  # the evaluation is shown all the same, then the plot's sentence
             failed = str(e)
+    video = None
+    if args.video is not None and failed is None:
+        from asap_dsl.render import RenderError, video_run
+
+        try:
+            video = video_run(args.run, args.video, episodes=args.episodes, seed=args.seed, spec=args.spec)
+        except (RunError, RenderError) as e:  # the evaluation is shown all the same, then why no video
+            failed = str(e)
     if args.format == "json":
         data = json_safe(ev.to_dict(per_state=args.states))
         if plot is not None:
             data["plot"] = str(plot)
+        if video is not None:
+            data["video"] = {"path": str(video[0]), "frames": video[1], "renderer": video[2]}
         out.write(json.dumps(data, indent=2, allow_nan=False) + "\n")
     else:
         out.write(ev.render() + "\n")
         if plot is not None:
             out.write(f"  plot: {shown(plot)}\n")
+        if video is not None:
+            out.write(f"  video: {shown(video[0])} ({video[1]} frames, {video[2]} renderer)\n")
     if failed is not None:
-        raise InputError(f"{failed} (the evaluation above was computed; no plot was written)")
+        what = "no plot was written" if args.plot is not None and plot is None else "no video was written"
+        raise InputError(f"{failed} (the evaluation above was computed; {what})")
     return 0
