@@ -14,8 +14,11 @@ preset as issue 16 found it (stable-baselines3 on torch, the numpy step, no demo
 bars of issue 16: ``default`` at least 3x sooner than ``before16`` and 10x sooner than ``paper``
 (a variant that never gets there counts as ``--limit``, so its ratio is a lower bound).
 
+``--states validation`` judges on the 1000 validation states (seed 7, the oracle's ceiling on
+them) instead: the states a choice between settings is made on, never the evaluation states.
+
     .venv/bin/python benchmarks/train.py [--task reach_avoid] [--margin 5] [--seeds 0,1,2]
-        [--presets default,before16,paper] [--every 5] [--limit 600]
+        [--presets default,before16,paper] [--every 5] [--limit 600] [--states evaluation|validation]
 """
 
 from __future__ import annotations
@@ -44,7 +47,7 @@ BARS = {"before16": 3.0, "paper": 10.0}
 
 
 def _time_to_ceiling(spec: Path, task: str, variant: str, seed: int, ceiling: dict, margin: float, every: float,
-                     limit: float, steps: int, log, n_envs=None, settings=None) -> dict:
+                     limit: float, steps: int, log, n_envs=None, settings=None, state_seed: int = EVAL_SEED) -> dict:
     from stable_baselines3.common.callbacks import BaseCallback
 
     from asap_dsl.backends.rl.sb3 import PolicyController, Scaling
@@ -58,7 +61,7 @@ def _time_to_ceiling(spec: Path, task: str, variant: str, seed: int, ceiling: di
     prog = asap_dsl.load(spec)
     cfg = resolve_config(prog, task, preset=preset, seed=seed, steps=steps, n_envs=n_envs, settings=settings)
     tm = prog.task(task).model
-    states = task_states(prog.system, tm, 1000, seed=EVAL_SEED)
+    states = task_states(prog.system, tm, 1000, seed=state_seed)
     judge = Evaluator(prog, task, states, reward=cfg.reward)
     scaling = Scaling.for_system(prog.system, cfg.observation_scaling, cfg.action_scaling)
     out = {"preset": variant, "seed": seed, "seconds": None, "steps": None, "rates": None, "history": []}
@@ -108,7 +111,12 @@ def main() -> int:
     ap.add_argument("--envs", type=int, default=None, help="environments of the default preset (to try others)")
     ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                     help="a hyperparameter of the default preset, e.g. batch_size=128 (to try others)")
+    ap.add_argument("--states", choices=("evaluation", "validation"), default="evaluation",
+                    help="judge on the evaluation states (seed 2024) or the validation states (seed 7)")
     args = ap.parse_args()
+    from asap_dsl.backends.rl.config import VALIDATION_SEED
+
+    state_seed = EVAL_SEED if args.states == "evaluation" else VALIDATION_SEED
     overrides = {}
     for item in args.set:
         key, _, value = item.partition("=")
@@ -116,7 +124,7 @@ def main() -> int:
     from asap_dsl.backends.oracle.cache import oracle_for
 
     prog = asap_dsl.load(args.spec)
-    oracle = oracle_for(prog, args.task, EVAL_SEED, 1000, workers=2)
+    oracle = oracle_for(prog, args.task, state_seed, 1000, workers=2)
     if oracle is None:
         print("no oracle for this spec: nothing to measure against", file=sys.stderr)
         return 1
@@ -124,6 +132,7 @@ def main() -> int:
     ceiling = {T: oracle.ceiling(T)["rate"] for T in tols}
     print(f"training benchmark: {Path(args.spec).name} {args.task}, {os.cpu_count()} CPUs; ceiling "
           + ", ".join(f"{T}: {100 * c:.1f}%" for T, c in ceiling.items())
+          + f" on the {args.states} states (seed {state_seed})"
           + f"; target: within {args.margin:g} points at every tolerance; evaluation every {args.every:g} s")
     results = {}
     for preset in args.presets.split(","):
@@ -135,7 +144,8 @@ def main() -> int:
             tweak = preset in ("default", "no-demos")
             r = _time_to_ceiling(Path(args.spec), args.task, preset, seed, ceiling, args.margin, args.every,
                                  args.limit, args.steps, lambda m: print(m, flush=True),
-                                 n_envs=args.envs if tweak else None, settings=overrides if tweak else None)
+                                 n_envs=args.envs if tweak else None, settings=overrides if tweak else None,
+                                 state_seed=state_seed)
             results.setdefault(preset, []).append(r)
             got = "not reached" if r["seconds"] is None else f"{r['seconds']:.1f} s ({r['steps']:,} steps)"
             print(f"  {preset:<8} seed {seed}: {got}", flush=True)

@@ -79,10 +79,22 @@ def compile_kernel(kernel: Kernel) -> Loaded:
 
 
 class _Live:
-    """asap's ``rob``/``sat`` at each entry's newest step (views into the core's rows)."""
+    """asap's ``rob``/``sat`` at each entry's newest step (views into the core's rows).
+
+    ``step_rob``/``step_sat`` are the numpy trackers' names for the values at the step just
+    taken: the same as the live ones where no entry restarted since (``autoreset=False``, the
+    offline :class:`asap_dsl.rollout.Evaluator`'s core)."""
 
     def __init__(self, rob: np.ndarray, sat: np.ndarray):
         self.rob, self.sat = rob, sat
+
+    @property
+    def step_rob(self) -> np.ndarray:
+        return self.rob
+
+    @property
+    def step_sat(self) -> np.ndarray:
+        return self.sat > 0
 
 
 class NativeCore:
