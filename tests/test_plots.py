@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 import asap_dsl
-from asap_dsl.backends.compare.phase_plots import (DPI, LEGEND, LINE, PANEL, Example, choose_projection, scene,
+from asap_dsl.backends.compare.phase_plots import (DPI, LEGEND, LINE, MIN_WIDTH, PANEL, Example, choose_projection, scene,
                                                    state_space)
 from conftest import RAIL, ROOT, asapc, one_line_error
 
@@ -92,10 +92,12 @@ def test_the_picture_is_a_png_of_the_expected_size():
 
     png = state_space([ex("two", True), ex("spread", False)])
     width, height = _png_size(png)
-    assert width == round(3 * PANEL[0] * DPI)  # three pairs: the grid of the spread's three coordinates
+    assert width == round(max(MIN_WIDTH, 3 * PANEL[0]) * DPI) >= 900  # three pairs: the grid of the spread's three coordinates
     lines = height / DPI - 2 * PANEL[1] - LEGEND  # two rows, the legend, the caption's lines
     assert 3 <= round(lines / LINE) <= 8, lines
     assert state_space([]) is None
+    one = _png_size(state_space([ex("two", True)]))  # a single pair: still wide enough to read
+    assert one[0] == round(MIN_WIDTH * DPI) >= 900
 
 
 def test_eval_plot_writes_the_picture_and_a_bad_path_is_one_sentence(tiny, tmp_path, capsys):
@@ -114,3 +116,20 @@ def test_eval_plot_writes_the_picture_and_a_bad_path_is_one_sentence(tiny, tmp_p
         code, out, err = asapc(capsys, "eval", run, "--episodes", 20, "--plot", bad)
         assert code == 1 and words in one_line_error(err), err
         assert "within" in out  # the evaluation is shown all the same
+
+
+def test_bold_marks_a_real_best_only():
+    from asap_dsl.backends.compare.report import Column, Method, table_rows
+
+    def method(key: str, rates: dict, kind: str = "rl") -> Method:
+        ev = {"rows": [{"tolerance": T, "rate": r, "count": round(r * 100), "states": 100} for T, r in rates.items()]}
+        return Method(key, key, kind, {"c R": [ev]})
+
+    col = Column("c.asap", "reach", [30, 15], 30)
+    methods = [method("a", {30: 0.8, 15: 0.0}), method("b", {30: 0.6, 15: 0.0}), method("g", {30: 0.8, 15: 0.0}, "greedy")]
+    rows = {(r[0], r[1]): r[2] for r in table_rows(methods, [col], md=True)}
+    assert rows[("30", "a")].startswith("**") and rows[("30", "g")].startswith("**")  # tied at the top: both best
+    assert not rows[("30", "b")].startswith("**")
+    assert not any(rows[("15", m)].startswith("**") for m in "abg")  # every 0.0: no bold
+    alone = table_rows([method("a", {30: 0.5, 15: 0.1})], [col], md=True)
+    assert not any(r[2].startswith("**") for r in alone)  # one method: nothing to be best against

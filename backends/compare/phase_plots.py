@@ -33,10 +33,12 @@ LEAD = 0.75
 #: At most this many leading coordinates make the grid (three pairs).
 GRID = 3
 TIME = None  # the horizontal axis of a one-state system: the step
-DPI = 90
-PANEL = (5.0, 4.6)  # inches per panel
-LEGEND = 0.45       # inches of the legend below the panels
-LINE = 0.13         # inches per line of the caption under it (what is drawn, why these coordinates)
+DPI = 100
+PANEL = (4.8, 4.4)  # inches per panel
+MIN_WIDTH = 9.6     # inches: at least 960 px wide, readable beside the report's other figures
+LEGEND = 0.75       # inches of the legend below the panels (two rows)
+LINE = 0.19         # inches per line of the caption under it (what is drawn, why these coordinates)
+CAPTION_CHARS = 13  # characters of the caption per inch of width, at its 9 points
 
 
 @dataclass(frozen=True)
@@ -360,6 +362,11 @@ def _panel(ax, ex: Example, p: int) -> None:
     ax.grid(alpha=0.3)
 
 
+def width(ncols: int) -> float:
+    """The figure's width in inches for ``ncols`` panels a row (at least :data:`MIN_WIDTH`)."""
+    return max(MIN_WIDTH, PANEL[0] * ncols)
+
+
 def state_space(examples: Sequence[Example]) -> Optional[bytes]:
     """One row per example, one panel per projected pair: the goal (green) and unsafe (red)
     regions' projections, the initial box (dotted), the policy's paths (solid) and the oracle's
@@ -368,7 +375,7 @@ def state_space(examples: Sequence[Example]) -> Optional[bytes]:
     from matplotlib.lines import Line2D
     from matplotlib.patches import Patch
 
-    from .plots import pyplot
+    from .plots import FONT, pyplot
 
     examples = [e for e in examples if e.policy]
     if not examples:
@@ -379,10 +386,11 @@ def state_space(examples: Sequence[Example]) -> Optional[bytes]:
         notes += [f"{ex.title}: {ex.scene.projection.why}"] + [f"{ex.title}: {n}" for n in ex.scene.notes]
     caption = textwrap.wrap("Regions are projections on the plotted coordinates (a ball's disc is both its shadow "
                             "and its slice through the centre; a region not constraining an axis spans it). "
-                            + " ".join(n + "." for n in notes), 90 * ncols)
+                            + " ".join(n + "." for n in notes), int(CAPTION_CHARS * width(ncols)))
     footer = LEGEND + LINE * (len(caption) + 1)  # inches below the panels: the legend, then the caption
     plt = pyplot()
-    fig, axes = plt.subplots(len(examples), ncols, figsize=(PANEL[0] * ncols, PANEL[1] * len(examples) + footer),
+    plt.rcParams.update(FONT)
+    fig, axes = plt.subplots(len(examples), ncols, figsize=(width(ncols), PANEL[1] * len(examples) + footer),
                              squeeze=False)
     for r, ex in enumerate(examples):
         pairs = ex.scene.projection.pairs
@@ -394,7 +402,7 @@ def state_space(examples: Sequence[Example]) -> Optional[bytes]:
             _panel(ax, ex, p)
             who = (f"{ex.label} (solid), oracle (dashed)" if ex.oracle is not None
                    else f"{ex.label} only: {ex.missing or 'no oracle'}")
-            ax.set_title(f"{ex.title}: {who}", fontsize=8)
+            ax.set_title(f"{ex.title}: {who}", fontsize=10)
     handles = [Line2D([], [], color="k", lw=1.6, label="policy"), Line2D([], [], color="k", ls="--", lw=1.3, label="oracle"),
                Line2D([], [], ls="", marker="*", ms=11, color="0.5", mec="k", label="reach point"),
                Line2D([], [], ls="", marker="o", ms=4, color="0.3", label="initial state"),
@@ -402,9 +410,9 @@ def state_space(examples: Sequence[Example]) -> Optional[bytes]:
                Patch(fc="tab:green", alpha=0.3, label="goal"), Patch(fc="tab:red", alpha=0.3, label="unsafe"),
                Patch(fill=False, ec="0.45", ls=":", label="initial box")]
     height = fig.get_figheight()
-    fig.legend(handles=handles, fontsize=7, loc="lower center", ncol=min(8, 4 * ncols), frameon=False,
+    fig.legend(handles=handles, fontsize=10, loc="lower center", ncol=4 if ncols < 2 else min(8, 4 * ncols), frameon=False,
                bbox_to_anchor=(0.5, (footer - LEGEND) / height))
-    fig.text(0.01, LINE / 2 / height, "\n".join(caption), fontsize=7, va="bottom", ha="left", color="0.25")
+    fig.text(0.01, LINE / 2 / height, "\n".join(caption), fontsize=9, va="bottom", ha="left", color="0.25")
     fig.tight_layout(rect=(0, footer / height, 1, 1))
     buf = io.BytesIO()
     fig.savefig(buf, format="png", dpi=DPI)

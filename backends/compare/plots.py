@@ -22,11 +22,24 @@ def pyplot():
     return plt
 
 
-def _figure(n: int, height: float = 3.2, rows_of: int = 1):
+#: Figures are drawn at this resolution and at least this wide (pixels): a report's page is about
+#: 1200 px wide, and a picture narrower than 900 px leaves its labels too small to read.
+DPI = 100
+MIN_WIDTH = 9.6   # inches: 960 px
+MAX_WIDTH = 12.8  # inches: 1280 px, the page's width (wider ones are shrunk, and their fonts with them)
+FONT = {"font.size": 11, "axes.titlesize": 11, "axes.labelsize": 11, "legend.fontsize": 10,
+        "xtick.labelsize": 10, "ytick.labelsize": 10}
+
+
+def _figure(n: int, height: float = 3.6, rows_of: int = 1):
+    """A grid of ``n`` panels (at most 4 a row; ``rows_of`` rows each), between MIN_WIDTH and
+    MAX_WIDTH wide."""
     plt = pyplot()
+    plt.rcParams.update(FONT)
     ncols = min(n, 4)
     nrows = math.ceil(n / ncols) * rows_of
-    fig, axes = plt.subplots(nrows, ncols, figsize=(4.2 * ncols, height * nrows), squeeze=False)
+    width = min(MAX_WIDTH, max(MIN_WIDTH, 4.8 * ncols))
+    fig, axes = plt.subplots(nrows, ncols, figsize=(width, height * nrows), squeeze=False)
     return plt, fig, axes
 
 
@@ -35,10 +48,34 @@ def _hide_unused(axes, used: int) -> None:
         ax.axis("off")
 
 
-def _png(plt, fig) -> bytes:
+def _legend_below(fig, handles, labels, ncol: Optional[int] = None) -> float:
+    """One legend for the figure, centred under its panels (never over the data); returns the
+    share of the figure's height it takes, for the layout's rectangle."""
+    if not handles:
+        return 0.0
+    ncol = ncol or min(len(handles), 4)
+    rows = math.ceil(len(handles) / ncol)
+    share = min(0.45, (0.3 * rows + 0.25) / fig.get_figheight())
+    fig.legend(handles, labels, loc="lower center", ncol=ncol, frameon=False, bbox_to_anchor=(0.5, 0.0))
+    return share
+
+
+def _handles(axes) -> tuple[list, list]:
+    """Every labelled artist of the panels, each label once."""
+    seen, handles, labels = set(), [], []
+    for ax in axes.flat:
+        for h, lab in zip(*ax.get_legend_handles_labels()):
+            if lab not in seen:
+                seen.add(lab)
+                handles.append(h)
+                labels.append(lab)
+    return handles, labels
+
+
+def _png(plt, fig, bottom: float = 0.0) -> bytes:
     buf = io.BytesIO()
-    fig.tight_layout()
-    fig.savefig(buf, format="png", dpi=90)
+    fig.tight_layout(rect=(0, bottom, 1, 1))
+    fig.savefig(buf, format="png", dpi=DPI)
     plt.close(fig)
     return buf.getvalue()
 
@@ -70,9 +107,8 @@ def success_vs_tolerance(columns, methods) -> bytes:
         ax.set_ylabel("success (%)")
         ax.set_ylim(0, 101)
         ax.grid(alpha=0.3)
-    axes.flat[0].legend(fontsize=7, loc="upper left")
     _hide_unused(axes, len(columns))
-    return _png(plt, fig)
+    return _png(plt, fig, _legend_below(fig, *_handles(axes)))
 
 
 def steps_vs_oracle(columns, method) -> Optional[bytes]:
@@ -88,14 +124,14 @@ def steps_vs_oracle(columns, method) -> Optional[bytes]:
         o = np.array([np.inf if x is None else x for x in col.oracle_steps], float)
         both = np.isfinite(s) & np.isfinite(o)
         jit = rng.uniform(-0.25, 0.25, size=(2, both.sum()))
-        ax.scatter(o[both] + jit[0], s[both] + jit[1], s=5, alpha=0.35)
+        ax.scatter(o[both] + jit[0], s[both] + jit[1], s=9, alpha=0.4)
         miss = np.isfinite(o) & ~np.isfinite(s)
         if miss.any():
-            ax.scatter(o[miss], np.full(miss.sum(), col.deadline + 1.5), s=6, marker="x", color="C3",
+            ax.scatter(o[miss], np.full(miss.sum(), col.deadline + 1.5), s=12, marker="x", color="C3",
                        label=f"not reached ({miss.sum()})")
-            ax.legend(fontsize=7, loc="lower right")
+            ax.legend(loc="upper left", bbox_to_anchor=(0.0, -0.22), frameon=False)  # under the panel
         ax.plot([0, col.deadline], [0, col.deadline], "k--", lw=1)
-        ax.set_title(f"{col.name}: {method.label}")
+        ax.set_title(f"{col.name}: {method.label}", fontsize=10)
         ax.set_xlabel("oracle's minimum (steps)")
         ax.set_ylabel("steps to reach")
         ax.grid(alpha=0.3)
@@ -103,59 +139,98 @@ def steps_vs_oracle(columns, method) -> Optional[bytes]:
     return _png(plt, fig)
 
 
+def _start_label(i: int, ex: dict) -> str:
+    """``start 1 (theta 0.52, omega -1.3)``: an example's initial state on its plotted coordinates."""
+    phase = ex.get("phase")
+    if phase is None or i >= len(phase.policy) or phase.policy[i] is None:
+        return f"start {i + 1}"
+    x0, names = phase.policy[i][0], phase.scene.names
+    shown = [k for pair in phase.scene.projection.pairs for k in pair if k is not None]
+    keys = list(dict.fromkeys(shown))[:3] or list(range(min(3, len(x0))))
+    return f"start {i + 1} (" + ", ".join(f"{names[k]} {x0[k]:.3g}" for k in keys) + ")"
+
+
 def trajectories(columns, examples: dict) -> Optional[bytes]:
-    """``examples[column name] = {"policy": [rho over time], "oracle": [...], "label": str}``: the
-    robustness of ``asap`` along a few example episodes, the policy solid and the oracle dashed."""
+    """``examples[column name] = {"policy": [rho over time], "oracle": [...], "label": str,
+    "phase": Example}``: the robustness of ``asap`` along a few example episodes, one colour per
+    start (named in the legend under each panel by its initial state), the policy solid and the
+    oracle dashed."""
+    from matplotlib.lines import Line2D
+
     cols = [c for c in columns if c.name in examples]
     if not cols:
         return None
-    plt, fig, axes = _figure(len(cols))
+    plt, fig, axes = _figure(len(cols), height=4.6)
     for ax, col in zip(axes.flat, cols):
         ex = examples[col.name]
         for i, rho in enumerate(ex["policy"]):
-            ax.plot(np.arange(len(rho)), rho, color=f"C{i}", lw=1.5, label=f"state {i}" if i < 6 else None)
+            ax.plot(np.arange(len(rho)), rho, color=f"C{i % 10}", lw=1.8, label=_start_label(i, ex))
         for i, rho in enumerate(ex.get("oracle") or []):
             if rho is not None:
-                ax.plot(np.arange(len(rho)), rho, color=f"C{i}", lw=1.2, ls="--")
+                ax.plot(np.arange(len(rho)), rho, color=f"C{i % 10}", lw=1.4, ls="--")
         ax.axhline(0, color="k", lw=0.8)
-        ax.set_title(f"{col.name}: {ex['label']} (solid), oracle (dashed)", fontsize=9)
+        ax.set_title(f"{col.name}: {ex['label']}", fontsize=10)
         ax.set_xlabel("step")
         ax.set_ylabel("robustness of asap")
         ax.grid(alpha=0.3)
+        ax.legend(loc="upper left", bbox_to_anchor=(0.0, -0.16), frameon=False, fontsize=9)  # under the panel
     _hide_unused(axes, len(cols))
-    return _png(plt, fig)
+    style = [Line2D([], [], color="k", lw=1.8, label="policy (solid)"),
+             Line2D([], [], color="k", lw=1.4, ls="--", label="oracle (dashed)")]
+    fig.legend(handles=style, loc="upper center", ncol=2, frameon=False, bbox_to_anchor=(0.5, 1.0))
+    buf = io.BytesIO()
+    fig.tight_layout(rect=(0, 0, 1, 1 - 0.35 / fig.get_figheight()))
+    fig.savefig(buf, format="png", dpi=DPI)
+    plt.close(fig)
+    return buf.getvalue()
+
+
+_DASHES = ["-", "--", ":", "-."]
 
 
 def training_curves(columns, curves: dict) -> Optional[bytes]:
     """``curves[column name] = [(label, rows)]`` with rows from ``curves.csv``: the validation
-    success at the tightest tolerance against wall time (top) and steps (bottom)."""
+    success at every tolerance (one colour per run, one line style per tolerance) against wall time
+    (top) and steps (middle), and the validation return against steps (bottom) where the runs
+    recorded it (a ``return`` column)."""
     cols = [c for c in columns if curves.get(c.name)]
     if not cols:
         return None
-    plt, fig, axes = _figure(len(cols), height=2.8, rows_of=2)
+    has_return = any("return" in r for c in cols for _, rows in curves[c.name] for r in rows)
+    per = 3 if has_return else 2
+    plt, fig, axes = _figure(len(cols), height=3.0, rows_of=per)
     ncols = min(len(cols), 4)
     for j, col in enumerate(cols):
-        top = axes[2 * (j // ncols), j % ncols]
-        bottom = axes[2 * (j // ncols) + 1, j % ncols]
-        T = min(col.tolerances)
-        for label, rows in curves[col.name]:
-            key = f"success_{T}"
-            rows = [r for r in rows if key in r]
-            if not rows:
-                continue
-            y = [100 * float(r[key]) for r in rows]
-            top.plot([float(r["seconds"]) for r in rows], y, lw=1.2, label=label)
-            bottom.plot([int(r["steps"]) for r in rows], y, lw=1.2, label=label)
-        top.set_title(f"{col.name}: validation success within {T}", fontsize=9)
+        panels = [axes[per * (j // ncols) + r, j % ncols] for r in range(per)]
+        top, middle = panels[0], panels[1]
+        tols = sorted(col.tolerances, reverse=True)
+        for c, (label, rows) in enumerate(curves[col.name]):
+            for d, T in enumerate(tols):
+                key = f"success_{T}"
+                have = [r for r in rows if key in r]
+                if not have:
+                    continue
+                y = [100 * float(r[key]) for r in have]
+                style = dict(color=f"C{c % 10}", ls=_DASHES[d % len(_DASHES)], lw=1.5, label=f"{label}, within {T}")
+                top.plot([float(r["seconds"]) for r in have], y, **style)
+                middle.plot([int(r["steps"]) for r in have], y, **style)
+            if has_return:
+                have = [r for r in rows if "return" in r]
+                panels[2].plot([int(r["steps"]) for r in have], [float(r["return"]) for r in have],
+                               color=f"C{c % 10}", lw=1.5, label=f"{label}, return")
+        top.set_title(f"{col.name}: validation success", fontsize=10)
         top.set_xlabel("wall time (s)")
-        bottom.set_xlabel("environment steps")
-        for ax in (top, bottom):
+        middle.set_xlabel("environment steps")
+        for ax in (top, middle):
             ax.set_ylabel("success (%)")
             ax.set_ylim(0, 101)
             ax.grid(alpha=0.3)
-        if j == 0:
-            top.legend(fontsize=6, loc="lower right")
+        if has_return:
+            panels[2].set_xlabel("environment steps")
+            panels[2].set_ylabel("validation return")
+            panels[2].grid(alpha=0.3)
     for ax in axes.flat:
         if not ax.has_data():
             ax.axis("off")
-    return _png(plt, fig)
+    handles, labels = _handles(axes)
+    return _png(plt, fig, _legend_below(fig, handles, labels, ncol=min(len(handles), 3)))

@@ -7,7 +7,8 @@ oracle replay). Nothing here trains, evaluates or reads run directories.
 
 Cells are the mean ± standard deviation over seeds of a method's success rate, with the 95%
 Wilson interval of the successes pooled over seeds (seeds × episodes trials); the best method of
-each column (the ceiling aside) is in bold.
+each column (the ceiling aside) is in bold where there is one: not where every method ties (at 0
+or anywhere else) or only one method has a cell.
 """
 
 from __future__ import annotations
@@ -104,8 +105,12 @@ def _cell_text(c: Optional[dict], bold: bool, md: bool) -> str:
 
 
 def _best(methods: list[Method], col: str, T: int) -> Optional[float]:
+    """The best mean of a column at ``T`` (the oracle's replay aside), or None where there is no
+    real best: a single method, every method tied, or the best at 0 (bold would mark nothing)."""
     vals = [c["mean"] for m in methods if m.kind != "oracle" for c in [m.cell(col, T)] if c is not None]
-    return max(vals) if vals else None
+    if len(vals) < 2 or max(vals) <= 0 or max(vals) - min(vals) <= 1e-12:
+        return None
+    return max(vals)
 
 
 def _tolerances(columns: list[Column]) -> list[int]:
@@ -172,7 +177,7 @@ def markdown(data: ReportData, plot_dir: str = "plots") -> str:
     header = ["within", "method"] + [c.name for c in cols]
     lines = [f"# {data.title}", "",
              "Success rate (%) on the seeded evaluation states (seed 2024): mean ± standard deviation over seeds, "
-             "[95% Wilson interval of the pooled successes]; best per column in bold. Ceiling: " + _bounds(cols) + ".",
+             "[95% Wilson interval of the pooled successes]; the best per column in bold (none where all tie). Ceiling: " + _bounds(cols) + ".",
              "", "## Table 1 — rewards", "", _md_table(header, table_rows(data.table1, cols, md=True)), ""]
     if data.table2:
         lines += ["## Table 2 — algorithms", "", _md_table(header, table_rows(data.table2, cols, md=True)), ""]
@@ -237,7 +242,8 @@ def html_page(data: ReportData) -> str:
     header = ["within", "method"] + [c.name for c in cols]
     body = [f"<h1>{html.escape(data.title)}</h1>",
             '<p class="caption">Success rate (%) on the seeded evaluation states (seed 2024): mean ± standard deviation '
-            "over seeds, [95% Wilson interval of the pooled successes]; best per column in bold. Ceiling: "
+            "over seeds, [95% Wilson interval of the pooled successes]; the best per column in bold (none where all tie). "
+            "Ceiling: "
             + html.escape(_bounds(cols)) + ".</p>",
             "<h2>Table 1 — rewards</h2>", _html_table(header, _escape_rows(table_rows(data.table1, cols, md=False), 2), "table1")]
     if data.table2:
