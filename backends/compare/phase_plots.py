@@ -351,7 +351,11 @@ def _panel(ax, ex: Example, p: int) -> None:
                         mfc=colour if mine else "white", zorder=5)
             elif mine:  # where the policy's episode ended without reaching (a failure or the deadline)
                 ax.plot(u[-1], v[-1], marker="X", ms=7, color=colour, mec="k", mew=0.5, zorder=5)
-        ax.plot(_coords(path, a)[0], _coords(path, b)[0], "o", color=colour, ms=4)
+        x0, y0 = _coords(path, a)[0], _coords(path, b)[0]
+        ax.plot(x0, y0, "o", color=colour, ms=5)
+        # each start named by its number, beside its initial state (the legend says what they are)
+        ax.annotate(str(i + 1), (x0, y0), xytext=(-4, 4), textcoords="offset points", ha="right", va="bottom",
+                    fontsize=10, fontweight="bold", color=colour)
     T = (0.0, float(sc.steps))
     ax.set_xlim(*_limits(xs, *(T if a is TIME else (sc.low[a], sc.high[a]))))
     ax.set_ylim(*_limits(ys, sc.low[b], sc.high[b]))
@@ -405,7 +409,7 @@ def state_space(examples: Sequence[Example]) -> Optional[bytes]:
             ax.set_title(f"{ex.title}: {who}", fontsize=10)
     handles = [Line2D([], [], color="k", lw=1.6, label="policy"), Line2D([], [], color="k", ls="--", lw=1.3, label="oracle"),
                Line2D([], [], ls="", marker="*", ms=11, color="0.5", mec="k", label="reach point"),
-               Line2D([], [], ls="", marker="o", ms=4, color="0.3", label="initial state"),
+               Line2D([], [], ls="", marker="o", ms=5, color="0.3", label="start 1, 2, ... (one colour each)"),
                Line2D([], [], ls="", marker="X", ms=7, color="0.5", mec="k", label="not reached"),
                Patch(fc="tab:green", alpha=0.3, label="goal"), Patch(fc="tab:red", alpha=0.3, label="unsafe"),
                Patch(fill=False, ec="0.45", ls=":", label="initial box")]
