@@ -14,7 +14,13 @@ _FRONT = {"Diagnostic": "diagnostics", "SpecError": "diagnostics", "Formula": "p
           "Task": "program", "load": "program", "loads": "program"}
 
 __all__ = ["Diagnostic", "Formula", "Program", "SpecError", "Task", "evaluate", "load", "loads", "make_env",
-           "make_vec_env", "train", "__version__"]
+           "make_vec_env", "register", "train", "__version__"]
+
+# The benchmarks' gymnasium ids (asap/dc_motor-reach_avoid-v0, ...): registered now if gymnasium is
+# loaded, else when it is (asap_dsl.registration; importing gymnasium here would cost 150 ms).
+from . import registration as _registration  # noqa: E402
+
+_registration.install()
 
 
 def __getattr__(name):  # lazy: gymnasium, stable-baselines3 and torch load only when needed
@@ -22,6 +28,8 @@ def __getattr__(name):  # lazy: gymnasium, stable-baselines3 and torch load only
         import importlib
 
         return getattr(importlib.import_module(f"{__name__}.{_FRONT[name]}"), name)
+    if name == "register":
+        return _registration.register
     if name in ("make_env", "make_vec_env"):
         from . import env
 

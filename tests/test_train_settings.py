@@ -5,6 +5,7 @@ state entry, said where it is chosen; validation sized to the run; the gymnasium
 
 from __future__ import annotations
 
+import importlib.util
 import inspect
 import json
 import subprocess
@@ -186,3 +187,164 @@ def test_a_wrong_observe_scaling_is_one_diagnostic(clause, words):
 
     ds = diagnostics(_rail().replace("deadline 20", "deadline 20\n  " + clause))
     assert len(ds) == 1 and words in (ds[0].message + " " + (ds[0].hint or ""))
+
+
+# ----------------------------------------------------------------------- 3. validation scaled to the run
+def test_a_short_run_validates_on_fewer_states():
+    from asap_dsl.backends.rl.validation import validation_states
+
+    prog = asap_dsl.loads(RAIL, "rail.asap")
+    assert resolve_config(prog, steps=2000).validation_episodes == 100  # was 500 whatever the length
+    assert resolve_config(prog, steps=250_000).validation_episodes == 500
+    assert validation_states(10_000, 500) == 200
+
+
+def test_a_validation_waits_while_validation_has_taken_more_than_a_tenth_of_the_training():
+    from asap_dsl.backends.rl.validation import Schedule
+
+    s = Schedule(every=64)
+    assert not s.due(63, 0.5) and s.due(64, 1.0)  # the first due one always runs
+    s.done(64, 3.0, cost=2.0)                     # ... and took 2 s
+    assert s.next_step == 128
+    assert not s.due(128, 4.0)   # 2 s of training so far: 4 s of validation would be 200%
+    assert not s.due(192, 41.0)  # 39 s of training: 4 s is 10.3%
+    assert s.due(193, 42.5)      # 40.5 s: within 10%
+    restored = Schedule(every=64)
+    restored.restore(s.to_dict())
+    assert (restored.spent, restored.last, restored.next_step) == (2.0, 2.0, 128)
+
+
+class _Notes:
+    def __init__(self):
+        self.lines, self.rows = [], []
+
+    def start(self, config, done, ceiling): pass
+    def advance(self, done): pass
+    def validated(self, row): self.rows.append(row)
+    def finish(self): pass
+    def note(self, line): self.lines.append(line)
+
+
+def test_tensorboard_has_sb3s_rollout_means_beside_the_validations_at_the_curves_steps(tiny, tmp_path):
+    from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+
+    notes = _Notes()
+    res = asap_dsl.train(tiny, steps=600, n_envs=2, out=tmp_path / "r", settings=FAST, evaluate=False, engine="sb3",
+                         progress=notes)
+    assert any(line.startswith("validation: 100 states, up to 30 times, each only while validation has taken at most 10%")
+               for line in notes.lines)
+    assert any(line.startswith(f"validation: {len(res.curves)} times, ") for line in notes.lines)
+    (events,) = (tmp_path / "r" / "tb").iterdir()
+    ea = EventAccumulator(str(events))
+    ea.Reload()
+    steps = lambda tag: [e.step for e in ea.Scalars(tag)]  # noqa: E731
+    curves = [r["steps"] for r in res.curves]
+    assert steps("validation/score") == curves
+    done = curves[1:]  # after the first episodes have ended (none has by the first validation)
+    assert set(done) <= set(steps("rollout/ep_rew_mean")) and set(done) <= set(steps("rollout/ep_len_mean"))
+    fps = steps("time/fps")
+    assert fps and len(fps) == len(set(fps))  # once per dump
+
+
+UNREACHABLE = RAIL.replace("ode { x' = 2 * u }", "ode { x' = 0.01 * u }").replace("init [-1.5, 1.5]", "init [-1.5, -1]")
+
+
+def test_when_no_validation_succeeds_the_latest_model_is_kept_and_said(tmp_path, capsys):
+    spec = tmp_path / "far.asap"
+    spec.write_text(UNREACHABLE)  # the goal is 2 m away at 0.01 m/s: never reached
+    code, out, err = asapc(capsys, "train", spec, "--steps", "300", "--envs", "2", "--engine", "sb3", "--out",
+                           tmp_path / "r", "--no-eval", "--quiet")
+    assert code == 0, err
+    manifest = RunDir(tmp_path / "r").read_manifest()
+    curves = (tmp_path / "r" / "curves.csv").read_text().splitlines()[1:]
+    assert len(curves) > 1 and manifest["best"]["steps"] == int(curves[-1].split(",")[0])  # the latest, not the first
+    assert "no validation succeeded" in out and "model.zip is the latest policy" in out
+
+
+# ----------------------------------------------------------------------- 5. the ceiling from a cached prefix
+def test_the_seeded_draw_is_a_prefix_except_where_a_state_was_redrawn_out_of_avoid():
+    from asap_dsl.sampling import task_states
+
+    prog = asap_dsl.loads(RAIL, "rail.asap")
+    task = prog.task("go").model
+    assert np.array_equal(task_states(prog.system, task, 20, seed=2024), task_states(prog.system, task, 200, seed=2024)[:20])
+    # an avoid region over part of the init box: the states drawn into it are redrawn after the
+    # whole first draw, so the first 20 of 200 are not the 20 (the cache compares state by state)
+    risky = asap_dsl.loads(RAIL.replace("box(x in [-2, -1.8])", "box(x in [-1.5, -0.5])"), "risky.asap")
+    t = risky.task("go").model
+    assert not np.array_equal(task_states(risky.system, t, 20, seed=2024), task_states(risky.system, t, 200, seed=2024)[:20])
+
+
+@pytest.fixture()
+def trained(tiny, tmp_path):
+    asap_dsl.train(tiny, steps=64, n_envs=2, out=tmp_path / "run", settings=FAST, evaluate=False, engine="sb3")
+    return tmp_path / "run"
+
+
+def test_eval_takes_the_ceiling_from_a_cached_oracle_on_the_first_states(tiny, trained, capsys):
+    code, out, err = asapc(capsys, "eval", trained, "--episodes", "12", "--no-oracle")
+    assert code == 0 and "not computed for these 12 states" in out and "--episodes 12` computes it" in out
+    assert asapc(capsys, "oracle", tiny, "--episodes", "8", "--workers", "1")[0] == 0
+    code, out, err = asapc(capsys, "eval", trained, "--episodes", "12", "--no-oracle", "--format", "json")
+    ev = json.loads(out)
+    assert ev["oracle"]["states"] == 8 and ev["rows"][0]["ceiling"]["states"] == 8  # the 8 cached are the first 12's
+    code, out, err = asapc(capsys, "eval", trained, "--episodes", "12", "--no-oracle")
+    assert "the oracle's on the first 8 of these 12 states" in out
+    code, out, err = asapc(capsys, "eval", trained, "--episodes", "5", "--no-oracle", "--format", "json")
+    assert json.loads(out)["oracle"]["states"] == 5  # the first 5 of the 8: exact
+
+
+def test_eval_says_it_computes_the_oracle_and_shows_its_progress(trained, capsys):
+    # a seed of its own: the cache is the test session's
+    code, out, err = asapc(capsys, "eval", trained, "--episodes", "3", "--workers", "1", "--seed", "31")
+    assert code == 0 and "computing the oracle's ceiling on 3 states (not cached" in err
+    again = asapc(capsys, "eval", trained, "--episodes", "3", "--no-oracle", "--format", "json", "--seed", "31")
+    assert json.loads(again[1])["oracle"]["states"] == 3 and "computing" not in again[2]
+
+
+def test_trains_final_evaluation_finds_a_cached_oracle_of_fewer_states(tmp_path, capsys):
+    own = tmp_path / "own.asap"
+    own.write_text(RAIL + "# a spec of its own: the cache is the session's\n")
+    assert asapc(capsys, "oracle", own, "--episodes", "6", "--workers", "1")[0] == 0
+    res = asap_dsl.train(own, steps=64, n_envs=2, out=tmp_path / "r", settings=FAST, eval_episodes=10, engine="sb3")
+    assert res.evaluation.oracle["states"] == 6 and "ceiling: not computed" not in res.evaluation.render()
+
+
+# ----------------------------------------------------------------------- 4. gymnasium ids
+def test_import_asap_dsl_registers_the_benchmark_ids_without_importing_gymnasium():
+    code = ("import sys, asap_dsl; assert 'gymnasium' not in sys.modules; import gymnasium; "
+            "env = gymnasium.make('asap/dc_motor-reach_avoid-v0'); print(env.reset(seed=0)[0].shape); "
+            "assert 'asap/swimmer-reach-v0' in gymnasium.registry")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd="/", timeout=300)
+    assert out.returncode == 0 and out.stdout.strip() == "(3,)", out.stderr
+    # gymnasium first, then asap_dsl (as rl_zoo3's --gym-packages does), and gymnasium's module prefix
+    code = ("import gymnasium; env = gymnasium.make('asap_dsl:asap/bicycle-reach-v0'); "
+            "import asap_dsl; print(env.observation_space.shape)")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd="/", timeout=300)
+    assert out.returncode == 0 and out.stdout.strip() == "(4,)", out.stderr
+
+
+def test_register_a_users_own_spec(tmp_path):
+    import gymnasium
+
+    spec = tmp_path / "my_plant.asap"
+    spec.write_text(RAIL)
+    assert asap_dsl.register(spec) == ["asap/my_plant-go-v0"]
+    assert asap_dsl.register(spec, "go", id="mine/Rail-v1", reward="rho") == ["mine/Rail-v1"]
+    assert gymnasium.registry["mine/Rail-v1"].kwargs["reward"] == "rho"  # given to every make
+    gymnasium.make("mine/Rail-v1")
+    obs, _ = gymnasium.make("asap/my_plant-go-v0").reset(seed=1)
+    assert obs.shape == (1,)
+    (tmp_path / "broken.asap").write_text("system {")
+    with pytest.raises(asap_dsl.SpecError):
+        asap_dsl.register(tmp_path / "broken.asap")
+
+
+@pytest.mark.skipif(importlib.util.find_spec("rl_zoo3") is None, reason="rl_zoo3 is not installed (pip install rl_zoo3)")
+def test_rl_zoo3_trains_a_benchmark_id_with_gym_packages(tmp_path):
+    out = subprocess.run([sys.executable, "-m", "rl_zoo3.train", "--algo", "sac", "--env", "asap/dc_motor-reach_avoid-v0",
+                          "--gym-packages", "asap_dsl", "-n", "300", "--eval-freq", "-1", "-f", str(tmp_path / "logs")],
+                         capture_output=True, text=True, timeout=900, cwd=tmp_path,
+                         env={**__import__("os").environ, "OMP_NUM_THREADS": "1"})
+    assert out.returncode == 0, out.stderr[-2000:]
+    assert list((tmp_path / "logs" / "sac").glob("asap-dc_motor-reach_avoid-v0_*/asap-dc_motor-reach_avoid-v0.zip"))

@@ -166,6 +166,10 @@ def train_command(args: argparse.Namespace, out: Optional[TextIO] = None, err: O
     out.write(f"trained {result.steps:,} steps in {result.seconds:.1f} s: {result.run_dir}\n")
     if best:
         out.write(f"best validation (step {best['steps']:,}): {validation_text(best, None)}\n")
+    if result.never_succeeded:
+        out.write(f"no validation succeeded ({len(result.curves)} on {result.config.validation_episodes:,} states, 0% at "
+                  f"every tolerance): model.zip is the latest policy (step {best['steps']:,}); more steps or more "
+                  "exploration (train { use_sde = true }) may find the goal\n")
     if result.evaluation is not None:
         out.write("\n" + result.evaluation.render() + "\n")
         if not (result.evaluation.oracle or {}).get("bound") and prog.system.kind != "simulator":

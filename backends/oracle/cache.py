@@ -20,7 +20,7 @@ import numpy as np
 from asap_dsl.limits import available_cores
 from asap_dsl.runs import atomic_write_json, spec_hash
 
-__all__ = ["CachedOracle", "cache_dir", "cache_path", "load", "store", "oracle_for"]
+__all__ = ["CachedOracle", "cache_dir", "cache_path", "load", "load_prefix", "store", "oracle_for"]
 
 
 def cache_dir() -> Path:
@@ -53,6 +53,15 @@ class CachedOracle:
         """``oracle (exact)``, ``oracle (local)`` or ``planner (achievable)``."""
         return self.data.get("bound") or f"oracle ({self.label})"
 
+    @property
+    def count(self) -> int:
+        """The states it holds."""
+        return int(self.steps.size)
+
+    def head(self, k: int) -> "CachedOracle":
+        """Its first ``k`` states (the same as an oracle on ``k`` states of the same draw)."""
+        return CachedOracle({**self.data, "states": (self.data.get("states") or [])[:k]})
+
     def ceiling(self, tolerance: int) -> dict:
         from asap_dsl.stats import rate
 
@@ -70,6 +79,31 @@ def load(source: str, task: str, seed: int, episodes: int, kind: str = "oracle")
     return CachedOracle(data)
 
 
+def load_prefix(source: str, task: str, seed: int, states: np.ndarray, kind: str = "oracle") -> Optional[CachedOracle]:
+    """The cached results whose states are a prefix of ``states`` or ``states`` a prefix of theirs
+    (the draw of :func:`asap_dsl.sampling.task_states` is one stream: ``n`` states of a seed are
+    the first ``n`` of more, except where a state was redrawn out of ``avoid``; so each state is
+    compared). The smallest superset is preferred (exact: cut to ``len(states)``), else the
+    largest subset (its :attr:`CachedOracle.count` says how many of the states it covers)."""
+    n = len(states)
+    found = []
+    for path in (cache_dir() / kind).glob(f"{spec_hash(source)[:16]}-{task}-s{seed}-n*.json"):
+        try:
+            m = int(path.stem.rsplit("-n", 1)[1])
+        except ValueError:
+            continue
+        found.append(m)
+    # supersets, smallest first; then subsets, largest first
+    for m in sorted((m for m in found if m >= n)) + sorted((m for m in found if m < n), reverse=True):
+        hit = load(source, task, seed, m, kind)
+        if hit is None or hit.count == 0:
+            continue
+        k = min(n, m)
+        if hit.x0.shape[1:] == states.shape[1:] and np.array_equal(hit.x0[:k], np.asarray(states, float)[:k]):
+            return hit.head(k) if m > k else hit
+    return None
+
+
 def store(source: str, report) -> Path:
     """Store an :class:`~asap_dsl.backends.oracle.solver.OracleReport` computed on the seeded states
     (the planner's apart from the oracle's)."""
@@ -85,20 +119,34 @@ def _kind(label: str) -> str:
 
 
 def oracle_for(prog, task: str, seed: int, episodes: int, compute: bool = True,
-               workers: Optional[int] = None) -> Optional[CachedOracle]:
+               workers: Optional[int] = None, progress=None, started=None,
+               partial: bool = False) -> Optional[CachedOracle]:
     """The cached results, computed (and stored) first when absent and ``compute``; None for a
-    task the oracle cannot express (nothing to compare against). A black-box system has the
+    task the oracle cannot express (nothing to compare against). A cache of more states counts
+    where these are its first (:func:`load_prefix`); with ``partial``, one of fewer states too,
+    where its states are the first of these (then its :attr:`~CachedOracle.count` is less than
+    ``episodes``, and nothing is computed). A black-box system has the
     planner's achievable steps when ``asapc oracle`` has stored them (they take minutes per
-    hundred states, so they are never computed on the way)."""
-    if prog.system.kind == "simulator":
-        return load(prog.source, task, seed, episodes, "planner")
-    hit = load(prog.source, task, seed, episodes)
-    if hit is not None or not compute:
+    hundred states, so they are never computed on the way). ``progress(k)`` is told of states
+    solved, ``started()`` before the computation begins."""
+    kind = "planner" if prog.system.kind == "simulator" else "oracle"
+    hit = load(prog.source, task, seed, episodes, kind)
+    if hit is None:
+        from asap_dsl.sampling import task_states
+
+        states = task_states(prog.system, prog.task(task).model, episodes, seed=seed)
+        hit = load_prefix(prog.source, task, seed, states, kind)
+        if hit is not None and hit.count < episodes and not partial:
+            hit = None  # fewer states than asked
+    if hit is not None or not compute or kind == "planner":
         return hit
+    if started is not None:
+        started()
     from .solver import OracleUnsupported, run
 
     try:
-        report = run(prog, task, episodes=episodes, seed=seed, workers=available_cores() if workers is None else workers)
+        report = run(prog, task, episodes=episodes, seed=seed, workers=available_cores() if workers is None else workers,
+                     progress=progress)
     except OracleUnsupported:
         return None
     store(prog.source, report)

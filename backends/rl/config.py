@@ -14,6 +14,7 @@ from asap_dsl.sampling import EVAL_SEED
 
 from .presets import OFF_POLICY, get_preset
 from .engines import REFERENCE, choose_engine
+from .validation import validation_states
 from . import hyper as _hyper
 
 __all__ = ["ConfigError", "TrainConfig", "VALIDATION_SEED", "resolve_config"]
@@ -163,7 +164,8 @@ def resolve_config(prog, task: Optional[str] = None, *, algo: Optional[str] = No
         # end is a true terminal (no bootstrapping past it). Without it the agent cannot tell, and
         # the time-out must be bootstrapped (stable-baselines3's TimeLimit.truncated handling).
         time_limit_terminal="time" in t.observe,
-        validation_episodes=p.validation_episodes, validation_seed=VALIDATION_SEED, validate_every=every,
+        validation_episodes=validation_states(total, p.validation_episodes), validation_seed=VALIDATION_SEED,
+        validate_every=every,
         eval_episodes=episodes, hyper=hyper, time_limit=None if time_limit is None else float(time_limit),
         demonstrations=demos, observation_sources=sources)
 

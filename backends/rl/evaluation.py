@@ -15,7 +15,7 @@ from __future__ import annotations
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Optional, Sequence, Union
+from typing import Any, Callable, Optional, Sequence, Union
 
 import numpy as np
 
@@ -93,6 +93,10 @@ class Evaluation:
             lines.append(line)
         if not bound:
             lines.append(f"  ceiling: {oracle.get('reason', 'unknown')}")
+        elif oracle.get("states", self.episodes) < self.episodes:
+            lines.append(f"  ceiling: the oracle's on the first {oracle['states']:,} of these {self.episodes:,} states "
+                         f"(cached; `asapc oracle {self.spec_file} --task {self.task} --seed {self.seed} --episodes "
+                         f"{self.episodes}` computes all)")
         s = self.steps
         lines.append("")
         if s.get("reached"):
@@ -123,13 +127,16 @@ def summarise(result: RolloutResult, *, method: str, prog: Program, task: str, s
         row["ceiling"] = oracle.ceiling(T) if oracle is not None else None
         rows.append(row)
     reached = result.t_reach[np.isfinite(result.t_reach)]
-    gap = asap_gap(result.t_reach, oracle.steps) if oracle is not None else None
+    covered = oracle.count if oracle is not None else 0  # a cached oracle on the first of these states
+    gap = asap_gap(result.t_reach[:covered], oracle.steps) if oracle is not None else None
     if oracle is not None:
-        info = {"bound": oracle.bound, "label": oracle.label, "seconds": oracle.seconds}
+        info = {"bound": oracle.bound, "label": oracle.label, "seconds": oracle.seconds, "states": covered}
     elif prog.system.kind == "simulator":
         info = {"reason": "not computed for this black box (`asapc oracle` plans through the simulator: planner (achievable))"}
     else:
-        info = {"reason": "not computed (run `asapc oracle` or evaluate without --no-oracle)"}
+        info = {"reason": f"not computed for these {result.episodes:,} states (`asapc oracle {prog.file} --task {task} "
+                          f"--seed {seed} --episodes {result.episodes}` computes it; so does `asapc eval` without "
+                          "--no-oracle)"}
     per_state = {"t_reach": [None if not np.isfinite(x) else int(x) for x in result.t_reach],
                  "end_reason": list(result.end_reason)}
     if oracle is not None:
@@ -219,7 +226,9 @@ def _load_run(run: RunDir, spec: Union[str, Path, None]) -> LoadedRun:
 
 def evaluate(run: Union[str, Path, RunDir], *, episodes: int = 1000, tolerances: Optional[Sequence[int]] = None,
              seed: int = EVAL_SEED, spec: Union[str, Path, None] = None, oracle: str = "auto",
-             workers: Optional[int] = None, write: Optional[bool] = None) -> Evaluation:
+             workers: Optional[int] = None, write: Optional[bool] = None,
+             progress: Optional[Callable[[int], None]] = None,
+             started: Optional[Callable[[], None]] = None) -> Evaluation:
     """Evaluate a run's best model, acting deterministically, on ``episodes`` seeded initial states.
 
     :param run: the run directory (written by :func:`asap_dsl.backends.rl.training.train`).
@@ -230,10 +239,14 @@ def evaluate(run: Union[str, Path, RunDir], *, episodes: int = 1000, tolerances:
     :param spec: evaluate against this spec file, which must be the one the run was trained on
         (default: the run's own copy, the original checked unchanged where it still exists).
     :param oracle: the ceiling beside the rates: ``auto`` (the cached one, computed first where
-        the dynamics are known), ``cache`` (only a cached one) or ``off``.
+        the dynamics are known), ``cache`` (only a cached one) or ``off``. A cached oracle on
+        more states of the seed counts where these are its first, one on fewer where its states
+        are the first of these (the ceiling is then said to cover those).
     :param workers: processes for computing the oracle (default: one per available core).
     :param write: write the result to the run's ``eval.json`` (default: when it is the run's own
         evaluation: its episode count, seed 2024 and the task's tolerances).
+    :param progress: told of the oracle's states solved while it computes (``progress(k)``);
+        ``started()`` once before it starts (neither when the ceiling is cached).
     :return: success rates with their intervals and ceilings, steps to reach, failures, ASAP gap.
     :raises asap_dsl.runs.RunError: the run cannot be evaluated (one sentence); a failed write of
         ``eval.json`` is :class:`~asap_dsl.runs.RunWriteError` with the evaluation as ``.evaluation``.
@@ -249,14 +262,14 @@ def evaluate(run: Union[str, Path, RunDir], *, episodes: int = 1000, tolerances:
     owned = run_dir.lock is None
     run_dir.acquire(exclusive=False)  # held until eval.json is written: nobody retrains it meanwhile
     try:
-        return _evaluate(load_run(run_dir, spec), episodes, tolerances, seed, oracle, workers, write)
+        return _evaluate(load_run(run_dir, spec), episodes, tolerances, seed, oracle, workers, write, progress, started)
     finally:
         if owned:
             run_dir.release()
 
 
 def _evaluate(loaded: LoadedRun, episodes: int, tolerances: Optional[Sequence[int]], seed: int, oracle: str,
-              workers: Optional[int], write: Optional[bool]) -> Evaluation:
+              workers: Optional[int], write: Optional[bool], progress=None, started=None) -> Evaluation:
     prog, cfg = loaded.program, loaded.config
     task = prog.task(cfg.task).model
     tols = list(tolerances) if tolerances else list(task.tolerances)
@@ -272,7 +285,8 @@ def _evaluate(loaded: LoadedRun, episodes: int, tolerances: Optional[Sequence[in
     if oracle != "off":
         from ..oracle.cache import oracle_for
 
-        ceiling = oracle_for(prog, cfg.task, seed, int(episodes), compute=oracle == "auto", workers=workers)
+        ceiling = oracle_for(prog, cfg.task, seed, int(episodes), compute=oracle == "auto", workers=workers,
+                             partial=True, progress=progress, started=started)
     ev = summarise(result, method=f"{cfg.algo} ({cfg.reward} reward, {cfg.preset} preset, seed {cfg.seed})",
                    prog=prog, task=cfg.task, seed=seed, tolerances=tols, oracle=ceiling, seconds=seconds)
     if seed == cfg.validation_seed:

@@ -11,8 +11,6 @@ and random state. The directory layout is :mod:`asap_dsl.runs`.
 
 from __future__ import annotations
 
-import csv
-import io
 import json
 import pickle
 import random
@@ -35,6 +33,7 @@ from .presets import OFF_POLICY, get_preset
 from .engines import Engine, get_engine
 from . import hyper as _hyper
 from .sb3 import PolicyController, Scaling, ScaledVecEnv
+from .validation import Schedule, log_validation, rule_text, validation_score, write_curves
 
 __all__ = ["TrainProgress", "TrainResult", "train", "validation_score"]
 
@@ -73,15 +72,15 @@ class TrainResult:
         return self.status == "interrupted"
 
     @property
+    def never_succeeded(self) -> bool:
+        """Every validation scored 0 at every tolerance (the model kept is then the latest)."""
+        return bool(self.curves) and all(r["score"] == 0 for r in self.curves)
+
+    @property
     def resume_command(self) -> str:
         """The command that continues this run, shell-quoted, ready to paste."""
         run = RunDir(self.run_dir)
         return run.command(run.read_manifest(), "--resume")
-
-
-def validation_score(rates: Mapping[int, float]) -> float:
-    """How validations rank models: the mean success rate over the task's tolerances."""
-    return float(np.mean(list(rates.values()))) if rates else 0.0
 
 
 # ------------------------------------------------------------------------------------ checkpoints
@@ -118,16 +117,6 @@ def _save_checkpoint(run: RunDir, model, venv, algo: str, extra: dict, engine: E
     run.save_checkpoint(files, int(extra["steps"]), **changes)
 
 
-def _write_curves(run: RunDir, rows: list[dict], tolerances) -> None:
-    buf = io.StringIO()
-    cols = ["steps", "seconds", "score", "best"] + [f"success_{T}" for T in tolerances]
-    w = csv.DictWriter(buf, fieldnames=cols, extrasaction="ignore", lineterminator="\n")
-    w.writeheader()
-    for r in rows:
-        w.writerow({**r, **{f"success_{T}": f"{v:.6f}" for T, v in r["rates"].items()}})
-    run.write_curves(buf.getvalue())
-
-
 # ------------------------------------------------------------------------------------ the run
 def _callbacks():
     from stable_baselines3.common.callbacks import BaseCallback
@@ -144,12 +133,8 @@ def _callbacks():
             n = self.num_timesteps
             if s.progress is not None:
                 s.progress.advance(n)
-            if n >= s.next_validation or s.seconds >= s.next_validation_time:
+            if s.schedule.due(n, s.seconds):
                 s.validate(self.model, n, self.logger)
-                while s.next_validation <= n:
-                    s.next_validation += s.cfg.validate_every
-                if s.cfg.time_limit is not None:  # a time-limited run validates on the clock too
-                    s.next_validation_time = s.seconds + s.cfg.time_limit / max(1, s.validations)
             if s.stop.signal is not None:
                 return False
             if s.cfg.time_limit is not None and s.seconds >= s.cfg.time_limit:
@@ -185,9 +170,9 @@ class _Session:
         self.validator = Evaluator(prog, cfg.task, val_states, reward=cfg.reward)
         self.curves: list[dict] = []
         self.best: Optional[dict] = None
-        self.next_validation = cfg.validate_every
         self.validations = max(1, cfg.steps // max(1, cfg.validate_every))
-        self.next_validation_time = (cfg.time_limit / self.validations) if cfg.time_limit is not None else float("inf")
+        # A time-limited run validates on the clock too (:mod:`.validation`).
+        self.schedule = Schedule(cfg.validate_every, None if cfg.time_limit is None else cfg.time_limit / self.validations)
         self.seconds_before = 0.0
         self.stop = stop if stop is not None else Interrupts()
         self.time_up = False
@@ -199,8 +184,11 @@ class _Session:
         return self.seconds_before + (time.perf_counter() - self.started)
 
     def learner_env(self, raw):
-        """A raw vector env of the task as the learner sees it (scaled, the deadline's handling)."""
-        return _LearnerEnv(ScaledVecEnv(raw, self.scaling), self.cfg.time_limit_terminal)
+        """A raw vector env of the task as the learner sees it (scaled, the deadline's handling),
+        its episodes counted for stable-baselines3's ``rollout/ep_rew_mean`` and ``ep_len_mean``."""
+        from stable_baselines3.common.vec_env import VecMonitor
+
+        return VecMonitor(_LearnerEnv(ScaledVecEnv(raw, self.scaling), self.cfg.time_limit_terminal))
 
     def witnesses(self) -> Optional[Any]:
         """A new run's demonstration sequences from the oracle (:mod:`.demonstrations`), before
@@ -230,8 +218,8 @@ class _Session:
         self.seconds_before += demos.seconds
         self.started = time.perf_counter()  # what came before is counted in the line above
         if self.cfg.time_limit is not None:  # validations on the clock: spread over the time left
-            left = max(0.0, self.cfg.time_limit - self.seconds_before)
-            self.next_validation_time = self.seconds_before + left / self.validations
+            self.schedule.restart_clock(self.seconds_before, max(0.0, self.cfg.time_limit - self.seconds_before),
+                                        self.validations)
         self._tell(demos.text())
         return demos.to_dict()
 
@@ -241,32 +229,33 @@ class _Session:
             note(line)
 
     def ceiling(self) -> Optional[dict]:
-        """The oracle's ceiling per tolerance on the evaluation states, when it is cached (shown
-        beside the validation rates; the oracle is never computed during training)."""
+        """The oracle's ceiling per tolerance on the evaluation states, when it is cached, for them
+        or the first of them (shown beside the validation rates; the oracle is never computed
+        during training)."""
         from asap_dsl.sampling import EVAL_SEED
 
-        from ..oracle.cache import load as load_cached
+        from ..oracle.cache import oracle_for
 
-        hit = load_cached(self.prog.source, self.cfg.task, EVAL_SEED, self.cfg.eval_episodes)
+        hit = oracle_for(self.prog, self.cfg.task, EVAL_SEED, self.cfg.eval_episodes, compute=False, partial=True)
         return None if hit is None else {T: hit.ceiling(T)["rate"] for T in self.tolerances}
 
     # -- validation
     def validate(self, model, steps: int, logger=None) -> dict:
+        t0 = time.perf_counter()
         res = self.validator.run(PolicyController(model, self.scaling))
         rates = {T: res.rate(T) for T in self.tolerances}
         score = validation_score(rates)
-        better = self.best is None or score > self.best["score"]
+        better = self.best is None or score >= self.best["score"]  # a tie: the later model, trained longer
         row = {"steps": int(steps), "seconds": round(self.seconds, 3), "score": round(score, 6), "rates": rates,
                "best": int(better)}
         self.curves.append(row)
         if better:
             self.best = dict(row)
             self.run.save_model(lambda path: model.save(str(path)), best=self.best)
-        _write_curves(self.run, self.curves, self.tolerances)
+        write_curves(self.run, self.curves, self.tolerances)
         if logger is not None:
-            for T, v in rates.items():
-                logger.record(f"validation/success_{T}", v)
-            logger.record("validation/score", score)
+            log_validation(model, logger, int(steps), rates, score)
+        self.schedule.done(int(steps), self.seconds, time.perf_counter() - t0)
         if self.progress is not None:
             self.progress.validated(row)
         return row
@@ -274,7 +263,7 @@ class _Session:
     # -- checkpoints
     def state(self, model) -> dict:
         return {"steps": int(model.num_timesteps), "seconds": self.seconds, "best": self.best,
-                "curves": self.curves, "next_validation": self.next_validation}
+                "curves": self.curves, **self.schedule.to_dict()}
 
     def checkpoint(self, model, run: Optional[RunDir] = None) -> None:
         """A checkpoint of ``model`` into the run (or ``run``: a new run's first, before it is in place)."""
@@ -297,7 +286,7 @@ class _Session:
                            f"again with `{self.run.command(self.run.read_manifest(), '--force')}`") from None
         _set_rng_state(state["rng"], self.raw_env, model, self.engine)
         self.best, self.curves = state["best"], list(state["curves"])
-        self.next_validation = int(state["next_validation"])
+        self.schedule.restore(state)
         self.seconds_before = float(state["seconds"])
         if int(model.num_timesteps) != int(state["steps"]):
             raise RunError(f"{self.run.path}: the checkpoint is inconsistent (model at step {model.num_timesteps}, "
@@ -309,6 +298,7 @@ class _Session:
     def learn(self, model) -> str:
         remaining = self.cfg.steps - int(model.num_timesteps)
         if self.progress is not None:
+            self._tell(rule_text(self.cfg.validation_episodes, self.validations))
             self.progress.start(self.cfg, int(model.num_timesteps), self.ceiling())
         self.started = time.perf_counter()
         self.last_checkpoint = self.started
@@ -318,11 +308,15 @@ class _Session:
                             reset_num_timesteps=model.num_timesteps == 0, tb_log_name="train", progress_bar=False)
             stopped = self.stop.signal is not None
             if not stopped and (not self.curves or self.curves[-1]["steps"] != model.num_timesteps):
-                self.validate(model, int(model.num_timesteps), None)
+                self.validate(model, int(model.num_timesteps), getattr(model, "_logger", None))
             self.checkpoint(model)
         finally:
             if self.progress is not None:
                 self.progress.finish()
+        if self.curves:
+            spent = self.schedule.spent
+            self._tell(f"validation: {len(self.curves)} times, {spent:.1f} s of the run's {self.seconds:.1f} s "
+                       f"({spent / max(self.seconds, 1e-9):.0%})")
         return "interrupted" if stopped else "finished"
 
 
