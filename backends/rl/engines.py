@@ -120,6 +120,44 @@ def _configure_jax() -> None:
     env.setdefault("JAX_COMPILATION_CACHE_MAX_SIZE", str(256 << 20))
 
 
+def _fused_sac_policy():
+    """sbx's SAC policy drawing an exploration action in one compiled call: sbx splits the key
+    (one XLA program) and then samples (another); fused, the same keys and actions cost one
+    dispatch, about 120 us less per vector step. Defined on first use: it imports JAX."""
+    global _FusedSACPolicy
+    if _FusedSACPolicy is None:
+        import jax
+        from sbx.sac.policies import SACPolicy
+
+        @jax.jit
+        def sample(actor_state, observations, key):
+            key, noise_key = jax.random.split(key, 2)  # SACPolicy.reset_noise, then sample_action
+            action = actor_state.apply_fn(actor_state.params, observations).sample(seed=noise_key)
+            return action, key, noise_key
+
+        class FusedSACPolicy(SACPolicy):
+            def _predict(self, observation, deterministic: bool = False):
+                if deterministic or self.use_sde:
+                    return super()._predict(observation, deterministic=deterministic)
+                action, self.key, self.noise_key = sample(self.actor_state, observation, self.key)
+                return action
+
+        FusedSACPolicy.__module__ = __name__
+        FusedSACPolicy.__qualname__ = "FusedSACPolicy"
+        _FusedSACPolicy = FusedSACPolicy
+    return _FusedSACPolicy
+
+
+_FusedSACPolicy = None
+
+
+def __getattr__(name: str):
+    # A saved model names its policy class by module and name: loading one finds it here.
+    if name == "FusedSACPolicy":
+        return _fused_sac_policy()
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
+
 class SbxEngine(Engine):
     name = "sbx"
     description = "sbx-rl: stable-baselines3's algorithms on JAX (no A2C)"
@@ -145,7 +183,9 @@ class SbxEngine(Engine):
             # SB3's PPO starts the action head orthogonal with gain 0.01 (actions near the centre);
             # sbx does that only when asked.
             kw["policy_kwargs"].setdefault("ortho_init", True)
-        return self._model_class(algo)("MlpPolicy", env, seed=seed, tensorboard_log=tensorboard_log, verbose=0, **kw)
+        cls = self._model_class(algo)
+        policy = _fused_sac_policy() if algo == "sac" else "MlpPolicy"
+        return cls(policy, env, seed=seed, tensorboard_log=tensorboard_log, verbose=0, **kw)
 
     def load(self, algo, path, env=None):
         return self._model_class(algo).load(str(path), env=env, device="cpu")
