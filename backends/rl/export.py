@@ -370,7 +370,10 @@ def export_run(run: Union[str, Path], fmt: str = "onnx", out: Union[str, Path, N
 
     if fmt not in FORMATS:
         raise ValueError(f"the format is onnx or torchscript; got {fmt!r}")
-    _needs("onnx", "onnx") if fmt == "onnx" else _needs("torch", "torch")
+    if fmt == "onnx":
+        _needs("onnx", "onnx")  # onnxruntime only runs the file: not needed to write it
+    else:
+        _needs("torch", "torch")
     target = Path(out).expanduser() if out else default_path(run, fmt)
     if target.is_dir():
         target = target / f"policy{FORMATS[fmt]}"
