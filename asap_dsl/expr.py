@@ -303,12 +303,14 @@ def _safe_math(f):
     return g
 
 
+#: Conditionals on Python floats (constant folding, the batch-1 monitor).
+_PYTHON_TESTS = _tests(lambda a, b: a and b, lambda a, b: a or b, lambda a: not a, lambda c, a, b: a if c else b)
+
 _MATH = SimpleNamespace(
     **{k: _safe_math(getattr(math, k)) for k in ("sin", "cos", "tan", "asin", "acos", "atan", "atan2", "sinh", "cosh", "tanh", "exp", "log", "sqrt")},
     abs=abs, min=min, max=max, norm=lambda *xs: math.sqrt(sum(x * x for x in xs)),
     pow=_safe_math(lambda a, b: float(a) ** float(b) if not (a < 0 and not float(b).is_integer()) else math.nan),
-    clip=_clipped(min, max), **_tests(lambda a, b: a and b, lambda a, b: a or b, lambda a: not a,
-                                      lambda c, a, b: a if c else b),
+    clip=_clipped(min, max), **_PYTHON_TESTS,
 )
 
 
@@ -318,8 +320,7 @@ SCALAR = SimpleNamespace(
     **{k: getattr(math, k) for k in ("sin", "cos", "tan", "asin", "acos", "atan", "atan2", "sinh", "cosh", "tanh",
                                       "exp", "log", "sqrt")},
     abs=abs, min=min, max=max, norm=lambda *xs: math.sqrt(sum(x * x for x in xs)), pow=math.pow,
-    clip=_clipped(min, max), **_tests(lambda a, b: a and b, lambda a, b: a or b, lambda a: not a,
-                                      lambda c, a, b: a if c else b),
+    clip=_clipped(min, max), **_PYTHON_TESTS,
 )
 
 

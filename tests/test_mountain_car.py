@@ -61,7 +61,7 @@ def test_the_step_is_gymnasiums_wall_included(prog):
 def test_oracle_sequences_reach_the_goal_in_gymnasium_at_the_oracles_step(prog):
     # Starts representable in float32, gymnasium's state type, so that both begin at the same point.
     states = task_states(prog.system, prog.task("reach").model, 3, seed=7).astype(np.float32).astype(np.float64)
-    oracle = O.Oracle(prog, "reach", time_limit=20.0)
+    oracle = O.Oracle(prog, "reach", time_limit=60.0)  # about 5 s each when the machine is quiet
     for x0 in states:
         r = oracle.solve(x0)
         assert r.status == "solved" and r.verified and 60 <= r.steps <= 70, r
