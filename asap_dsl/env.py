@@ -38,7 +38,7 @@ import numpy as np
 from gymnasium import spaces
 
 from .rewards import FLOAT32_MAX, FormulaTracker, make_reward
-from .registration import register_benchmarks
+from .registration import register_benchmarks, specs_dir
 from .sampling import initial_states
 from .native import with_engine
 from .sim import build_simulator
@@ -471,35 +471,28 @@ def make_vec_env(prog_or_path, task: Optional[str] = None, num_envs: int = 1, se
 
 # ---- gymnasium ids ----------------------------------------------------------------------------
 
-# The benchmark specs ship inside the wheel as asap_dsl/specs; a source checkout has them in specs/.
-_HERE = Path(__file__).resolve().parent
-SPECS_DIR = _HERE / "specs" if (_HERE / "specs").is_dir() else _HERE.parent / "specs"
+# The ids and their registration: asap_dsl.registration (`import asap_dsl` registers them).
+SPECS_DIR = specs_dir()
 
 
 def _make_registered(path: str, task: str, **kw):
     return make_env(path, task=task, **kw)
 
 
-def register_envs(specs_dir: Union[str, os.PathLike, None] = None) -> list[str]:
-    """Register ``asap/<spec>-<task>-v0`` for each task of each ``*.asap`` in ``specs_dir``
-    (default: the repository's specs/). Spec files are read now; simulators are built on ``make``."""
-    from .program import load
+def register_envs(directory: Union[str, os.PathLike, None] = None) -> list[str]:
+    """Register ``asap/<spec>-<task>-v0`` for each task of each ``*.asap`` in ``directory``
+    (default: the benchmark specs), each spec loaded and checked now: a broken one is left out.
+    :func:`asap_dsl.register` does one spec."""
+    from .diagnostics import SpecError
+    from .registration import register
 
-    d = Path(specs_dir) if specs_dir is not None else SPECS_DIR
-    ids = []
-    if not d.is_dir():
-        return ids
-    for f in sorted(d.glob("*.asap")):
+    d = Path(directory) if directory is not None else SPECS_DIR
+    ids: list[str] = []
+    for f in sorted(d.glob("*.asap")) if d.is_dir() else ():
         try:
-            prog = load(f)
-        except Exception:  # noqa: BLE001 — a broken spec is not registered; lint reports it
+            ids += register(f)
+        except (SpecError, OSError):  # a broken spec is not registered; lint reports it
             continue
-        for t in prog.tasks:
-            env_id = f"asap/{f.stem}-{t}-v0"
-            if env_id not in gym.registry:
-                gym.register(id=env_id, entry_point="asap_dsl.env:_make_registered",
-                             kwargs={"path": str(f), "task": t}, max_episode_steps=None, disable_env_checker=True)
-            ids.append(env_id)
     return ids
 
 
