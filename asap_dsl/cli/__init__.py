@@ -1,7 +1,7 @@
 """``asapc``: the command line. I/O lives here; everything it reports is computed elsewhere.
 
 One module per command (:mod:`.lint`, :mod:`.show`, :mod:`.train`, :mod:`.eval`, :mod:`.export`,
-:mod:`.oracle`, :mod:`.compare`), each with a ``fill_X_subparser`` that adds its flags and an ``X_command`` that
+:mod:`.tune`, :mod:`.oracle`, :mod:`.compare`), each with a ``fill_X_subparser`` that adds its flags and an ``X_command`` that
 runs it; what they share (argparse types, ``--task``, ``--seed``, ``--workers``, the failures) is
 :mod:`.args`. A command fails by raising; :func:`main` is the one place that turns an exception
 into a sentence and an exit status:
@@ -44,6 +44,7 @@ from .lint import fill_lint_subparser
 from .oracle import fill_oracle_subparser
 from .show import fill_show_subparser, show_data
 from .train import fill_train_subparser
+from .tune import fill_tune_subparser
 
 # available_cores and show_data: the library's, named here for scripts that used them from the CLI.
 __all__ = ["available_cores", "build_parser", "main", "show_data"]
@@ -64,7 +65,7 @@ def build_parser() -> argparse.ArgumentParser:
     sub = p.add_subparsers(dest="command", metavar="COMMAND")
     sub.required = True
     for fill in (fill_lint_subparser, fill_show_subparser, fill_train_subparser, fill_eval_subparser,
-                 fill_export_subparser, fill_compare_subparser, fill_oracle_subparser):
+                 fill_export_subparser, fill_tune_subparser, fill_compare_subparser, fill_oracle_subparser):
         fill(sub)
     return p
 
