@@ -118,8 +118,11 @@ def connect(address: str, timeout: float = 30.0) -> bool:
 
     with _captured_stderr() as log:  # Ray's core logs each retry on stderr: kept, and read for the reason
         t = threading.Thread(target=init, name="ray-connect", daemon=True)
-        t.start()
-        t.join(timeout)
+        if address == "local":  # in this thread: the local cluster's processes die with the thread that
+            t.run()             # started them (PR_SET_PDEATHSIG), and there is nobody to wait for
+        else:
+            t.start()
+            t.join(timeout)
         log.keep = t.is_alive()  # still retrying: its log goes on into the file, not onto the user's screen
     said = log.read()
     if "InvalidAuthToken" in said or "Unauthenticated" in said:
