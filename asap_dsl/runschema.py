@@ -122,7 +122,8 @@ def read_curves(path: PathLike) -> list[dict]:
     out = []
     for i, row in enumerate(rows, 2):
         try:
-            values = {k: float(v) for k, v in row.items()}
+            # an empty cell: a column the run did not keep yet when that row was written (return)
+            values = {k: float(v) for k, v in row.items() if v != ""}
         except (TypeError, ValueError):
             raise RunError(f"{shown(path)}: line {i} is not a row of numbers (damaged)") from None
         if "steps" not in values or not all(math.isfinite(v) for v in values.values()):

@@ -64,7 +64,7 @@ def test_each_algorithm_trains_and_evaluates(tiny, tmp_path, algo):
     rates = [r["rate"] for r in ev["rows"]]
     assert rates == sorted(rates, reverse=True)  # success within 20 includes success within 5
     header = (out / "curves.csv").read_text().splitlines()[0]
-    assert header == "steps,seconds,score,best,success_5,success_10,success_20"
+    assert header == "steps,seconds,score,best,success_5,success_10,success_20,return"
 
 
 def test_rail_is_learned(tiny, tmp_path):

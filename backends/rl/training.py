@@ -247,7 +247,7 @@ class _Session:
         score = validation_score(rates)
         better = self.best is None or score >= self.best["score"]  # a tie: the later model, trained longer
         row = {"steps": int(steps), "seconds": round(self.seconds, 3), "score": round(score, 6), "rates": rates,
-               "best": int(better)}
+               "best": int(better), "return": round(float(np.mean(res.returns)), 6)}
         self.curves.append(row)
         if better:
             self.best = dict(row)

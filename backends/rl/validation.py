@@ -100,9 +100,10 @@ class Schedule:
 
 
 def write_curves(run, rows: list[dict], tolerances) -> None:
-    """``curves.csv``: one row per validation."""
+    """``curves.csv``: one row per validation (``return``: the validation episodes' mean return,
+    empty in rows from runs recorded before it was kept)."""
     buf = io.StringIO()
-    cols = ["steps", "seconds", "score", "best"] + [f"success_{T}" for T in tolerances]
+    cols = ["steps", "seconds", "score", "best"] + [f"success_{T}" for T in tolerances] + ["return"]
     w = csv.DictWriter(buf, fieldnames=cols, extrasaction="ignore", lineterminator="\n")
     w.writeheader()
     for r in rows:
