@@ -63,11 +63,20 @@ def _score(x: Optional[float]) -> str:
 
 
 class TuneProgress:
-    """One line per trial on standard error: its settings when it starts, its end, the best so far."""
+    """One line per trial on standard error: its settings when it starts, then how it ended, its score
+    and the best so far. Trials are counted ``k of N`` from those done before this call."""
 
-    def __init__(self, stream: TextIO, wanted: int, quiet: bool):
+    def __init__(self, stream: TextIO, wanted: int, quiet: bool, done: int = 0, best: Optional[float] = None):
         self.stream, self.wanted, self.quiet = stream, wanted, quiet
-        self.best: Optional[float] = None
+        self.best = best
+        self.next = done
+        self.ordinal: dict[int, int] = {}
+
+    def _k(self, number: int) -> int:
+        if number not in self.ordinal:
+            self.next += 1
+            self.ordinal[number] = self.next
+        return self.ordinal[number]
 
     def __call__(self, event: str, data: Any) -> None:
         if self.quiet:
@@ -76,8 +85,9 @@ class TuneProgress:
             line = ("starting point, the task's own train block: " + (f"score {_score(data.score)}" if data.score is not None
                     else f"{data.state}"))
         elif event == "start":
-            number, settings = data
-            line = f"trial {number} of {self.wanted}: {_settings_text(settings)}"
+            number, settings, continues = data
+            again = f" (continues trial {self.ordinal.get(continues, continues)} from its checkpoint)" if continues else ""
+            line = f"trial {self._k(number)} of {self.wanted}{again}: {_settings_text(settings)}"
         elif event == "trial":
             if data.state == "complete" and data.score is not None:
                 self.best = data.score if self.best is None else max(self.best, data.score)
@@ -85,7 +95,8 @@ class TuneProgress:
                     "pruned": f"pruned at {data.steps:,} steps (best validation {_score(data.score)})",
                     "failed": f"failed: {data.error}", "cut": f"cut by the time limit at {data.steps:,} steps",
                     "interrupted": f"interrupted at {data.steps:,} steps"}.get(data.state, data.state)
-            line = f"trial {data.number} of {self.wanted}: {what} in {data.seconds:.1f} s; best so far {_score(self.best)}"
+            line = (f"trial {self._k(data.number)} of {self.wanted}: {what} in {data.seconds:.1f} s; "
+                    f"best so far {_score(self.best)}")
         else:
             line = str(data)
         print(line, file=self.stream, flush=True)
@@ -145,9 +156,11 @@ def tune_command(args: argparse.Namespace, out: Optional[TextIO] = None, err: Op
     if args.task is None and len(tuning.prog.tasks) != 1:
         tuning.close()
         raise UsageError(f"{args.file} has tasks {', '.join(tuning.prog.tasks)}: name one with --task")
-    progress = TuneProgress(err, args.trials, args.quiet)
+    records = tuning.records()
+    before = sum(r.state in ("complete", "pruned", "failed") for r in records)
+    scores = [r.score for r in records if r.state == "complete" and r.score is not None]
+    progress = TuneProgress(err, args.trials, args.quiet, before, max(scores) if scores else None)
     try:
-        before = tuning.done_count()
         if before and not args.quiet:
             print(f"continuing the tuning in {tuning.directory}: {before} trial(s) done", file=err, flush=True)
         if args.ray is not None:

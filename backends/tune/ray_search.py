@@ -16,11 +16,13 @@ file must be at the same path); the cluster is joined with
 from __future__ import annotations
 
 import dataclasses
+import os
 import time
 from pathlib import Path
 from typing import Any, Callable, Optional
 
 from .space import finite, sample, settings_id
+from .study import STUDY, TuneError, continued_from
 from .trial import TrialJob, TrialOutcome, job_for, run_trial
 
 __all__ = ["search_ray"]
@@ -38,9 +40,13 @@ def _trainable(config: dict, job: TrialJob) -> None:
         return False  # the scheduler stops the trial itself
 
     outcome = run_trial(job, report, None)
-    last = outcome.curve[-1][0] if outcome.curve else 1
-    tune.report({"score": outcome.score if finite(outcome.score) else 0.0, "period": last, "final": 1,
+    last = outcome.curve[-1][0] if outcome.curve else 0  # the outcome one period on: a period is reported once
+    tune.report({"score": outcome.score if finite(outcome.score) else 0.0, "period": last + 1, "final": 1,
                  **{k: v for k, v in outcome.to_dict().items() if k not in ("score", "curve")}})
+
+
+def _dirname(trial) -> str:
+    return f"trial-{trial.trial_id}"  # Tune's default name spells out every setting
 
 
 def _baseline_task(job: TrialJob) -> dict:
@@ -70,6 +76,22 @@ def _classes():
         def __init__(self, *args, tuning, stopping: Stopping, tell: Callable, deadline: Optional[float], **kw):
             super().__init__(*args, **kw)
             self.tuning, self.stopping, self.tell, self.deadline = tuning, stopping, tell, deadline
+
+        def __getstate__(self) -> dict:  # Tune pickles its configuration: the driver's own objects stay out
+            return {k: v for k, v in self.__dict__.items() if k not in ("tuning", "tell")}
+
+        def save(self, checkpoint_path: str) -> None:
+            pass  # the study is in the tuning's storage already; Tune's own restore is not used
+
+        def save_to_dir(self, checkpoint_dir: str, session_str: str = "default") -> None:
+            pass
+
+        def suggest(self, trial_id: str) -> Optional[dict]:
+            config = super().suggest(trial_id)
+            ot = self._ot_trials.get(trial_id)
+            if config is not None and ot is not None:
+                self.tell("start", (ot.number + 1, config["settings"], continued_from(ot)))
+            return config
 
         def on_trial_complete(self, trial_id: str, result: Optional[dict] = None, error: bool = False) -> None:
             ot = self._ot_trials.get(trial_id)
@@ -106,8 +128,7 @@ def search_ray(tuning, address: str, trials: int, time_limit: Optional[float], t
     when the cluster cannot be joined, :class:`~.study.TuneError` when Ray Tune is missing."""
     from asap_dsl.backends.compare.cluster import connect
 
-    from .study import STUDY, TuneError
-
+    os.environ.setdefault("RAY_AIR_NEW_OUTPUT", "0")  # Tune's tables are not this command's progress lines
     try:
         import ray
         from ray import tune
@@ -149,10 +170,9 @@ def _fit(tuning, tune, optuna, study_name: str, left: int, deadline: Optional[fl
     setup = tuning.setup
     ctx = setup.context()
 
-    def space(trial):
+    def space(trial):  # pickled with the searcher: it holds nothing of the driver's
         settings = sample(trial, ctx)
         trial.set_user_attr("settings", settings)
-        tell("start", (trial.number + 1, settings))
         return {"settings": settings}
 
     stopping = Stopping(time_attr="period", metric="score", mode="max",
@@ -167,7 +187,8 @@ def _fit(tuning, tune, optuna, study_name: str, left: int, deadline: Optional[fl
     budget = None if deadline is None else max(1.0, deadline - time.monotonic())
     tuner = tune.Tuner(
         tune.with_resources(tune.with_parameters(_trainable, job=job), {"cpu": 1}),
-        tune_config=tune.TuneConfig(search_alg=search, scheduler=stopping, num_samples=left, time_budget_s=budget),
+        tune_config=tune.TuneConfig(search_alg=search, scheduler=stopping, num_samples=left, time_budget_s=budget,
+                                    trial_dirname_creator=_dirname),
         run_config=tune.RunConfig(name=name, storage_path=str(sessions.resolve()), verbose=0))
     try:
         tuner.fit()

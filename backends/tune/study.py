@@ -32,7 +32,7 @@ from typing import Any, Callable, Optional
 from .space import SpaceContext, finite, sample, settings_id
 from .trial import TrialOutcome, job_for, run_trial
 
-__all__ = ["STUDY", "TrialRecord", "TuneError", "TuneResult", "TuneSetup", "Tuning"]
+__all__ = ["STUDY", "TrialRecord", "continued_from", "TuneError", "TuneResult", "TuneSetup", "Tuning"]
 
 STUDY = "asap-tune"
 _FORMAT = 1
@@ -112,7 +112,11 @@ def _optuna():
         import optuna
     except ImportError:
         raise TuneError("asapc tune needs Optuna: pip install 'asap-dsl[tune]'") from None
+    import warnings
+
     optuna.logging.set_verbosity(optuna.logging.WARNING)
+    # TPE's multivariate mode (rl-zoo3's choice) is marked experimental: said once per trial otherwise
+    warnings.filterwarnings("ignore", category=optuna.exceptions.ExperimentalWarning)
     return optuna
 
 
@@ -283,7 +287,7 @@ class Tuning:
             outcome, settings = None, {}
             try:
                 settings = sample(trial, ctx)
-                tell("start", (trial.number + 1, settings))
+                tell("start", (trial.number + 1, settings, continued_from(trial)))
                 outcome = self._reuse(settings) or run_trial(
                     job_for(self.setup, settings, self.directory / "trials" / settings_id(settings)),
                     _reporter(trial), deadline)
@@ -330,6 +334,12 @@ class Tuning:
         atomic_write_json(self.directory / "best.json", {
             "trial": b.number if b else None, "score": b.score if b else None, "settings": b.settings if b else {},
             "baseline": baseline, "improved": res.improved})
+
+
+def continued_from(trial) -> Optional[int]:
+    """The (1-based) number of the interrupted trial that ``trial`` continues, if it does."""
+    n = trial.user_attrs.get("continues")
+    return None if n is None else int(n) + 1
 
 
 def _reporter(trial) -> Callable[[int, float, int], bool]:

@@ -167,4 +167,4 @@ def run_trial(job: TrialJob, report: Optional[Reporter] = None, deadline: Option
 def job_for(setup: Any, settings: dict, run_dir: Path) -> TrialJob:
     """The job of a trial of ``setup`` (a :class:`~.study.TuneSetup`)."""
     return TrialJob(setup.spec_file, setup.task, setup.algo, setup.engine, setup.steps, setup.n_envs, setup.seed,
-                    dict(settings), str(run_dir))
+                    dict(settings), str(Path(run_dir).resolve()))  # absolute: a Ray worker runs elsewhere
