@@ -131,7 +131,7 @@ def resolve_config(prog, task: Optional[str] = None, *, algo: Optional[str] = No
     except (ValueError, TypeError) as err:
         raise ConfigError(str(err)) from None
     reward_text = model.text
-    hyper = _hyperparameters(p.settings(algo), block, settings, algo, engine, block_algo=block.get("algo") or p.algo)
+    hyper = _hyperparameters(p.settings(algo, t.deadline), block, settings, algo, engine, block_algo=block.get("algo") or p.algo)
     total = int(steps if steps is not None else block.get("steps", p.steps))
     envs = int(n_envs if n_envs is not None else block.get("n_envs", p.n_envs))
     run_seed = int(seed if seed is not None else block.get("seed", 0))
