@@ -87,6 +87,8 @@ class PlannerBudget:
     exchange: int = 16
     refine_sigma: float = 0.3
     floor: float = 0.02
+    polish: float = 30.0
+    descents: int = 8
 
     def __post_init__(self):
         if self.method not in METHODS:
@@ -265,14 +267,14 @@ class Planner:
                        source="another state", rollouts=base.rollouts + len(pool),
                        seconds=base.seconds + time.perf_counter() - start)
 
-    def descend(self, x0: np.ndarray, z0: np.ndarray, iterations: int = 60,
-                horizon: Optional[int] = None) -> tuple[float, Optional[np.ndarray], int]:
+    def descend(self, x0: np.ndarray, z0: np.ndarray, iterations: int = 60, horizon: Optional[int] = None,
+                rollouts: float = math.inf) -> tuple[float, Optional[np.ndarray], int]:
         """A local search from the knots ``z0``: L-BFGS-B on the terminal cost at ``horizon``
         (default the deadline), its gradient from central differences of the knots before it all
         at once (one batch of ``2 knots m + 1`` rollouts). For the pilot, when sampling around
         "do nothing" finds no way (moving first takes the swimmer away from its goal), and to
         shorten what it found. Returns ``(steps, knots, rollouts)`` of the first candidate that
-        reached within ``horizon`` (``inf, None`` if none)."""
+        reached within ``horizon`` (``inf, None`` if none); it stops once it has spent ``rollouts``."""
         import scipy.optimize
 
         h = self.deadline if horizon is None else max(1, min(int(horizon), self.deadline))
@@ -296,7 +298,7 @@ class Planner:
             if t_reach[k] < found[0]:
                 found[0], found[1] = float(t_reach[k]), zs[k].copy()
             g = (cost[1: D + 1] - cost[D + 1:]) / (2 * eps)
-            if found[1] is not None:
+            if found[1] is not None or used[0] >= rollouts:
                 raise StopIteration
             return float(cost[0]), g
 
@@ -307,21 +309,21 @@ class Planner:
             pass
         return found[0], found[1], used[0]
 
-    def shorten(self, x0: np.ndarray, actions: np.ndarray, deadline: float,
-                iterations: int = 60) -> tuple[list[np.ndarray], int]:
+    def shorten(self, x0: np.ndarray, actions: np.ndarray, deadline: float, iterations: int = 60,
+                rollouts: float = math.inf) -> tuple[list[np.ndarray], int]:
         """Shorter and shorter sequences from ``x0``, starting from ``actions`` (which reaches
         in ``len(actions)`` steps): the sequence compressed in time to a tenth fewer steps (a
         faster stroke is the natural guess for arriving sooner), then :meth:`descend` at that
         horizon; a step at a time once a tenth fails, until one step fewer fails or the clock
-        (``deadline``, :func:`time.perf_counter`) runs out. Returns the sequences found,
-        longest first, and the rollouts spent."""
+        (``deadline``, :func:`time.perf_counter`) or the ``rollouts`` run out. Returns the
+        sequences found, longest first, and the rollouts spent."""
         out, used = [np.asarray(actions, float).reshape(-1, self.m)], 0
         cut = max(1, len(out[0]) // 10)
-        while len(out[-1]) > 1 and time.perf_counter() < deadline:
+        while len(out[-1]) > 1 and time.perf_counter() < deadline and used < rollouts:
             cur = out[-1]
             h = max(1, len(cur) - cut)
             squeezed = cur[np.floor(np.arange(h) * len(cur) / h).astype(int)]
-            t, z, spent = self.descend(x0, self._to_knots(squeezed), iterations, horizon=h)
+            t, z, spent = self.descend(x0, self._to_knots(squeezed), iterations, horizon=h, rollouts=rollouts - used)
             used += spent
             if z is not None:
                 out.append(self.actions(z[None])[0, : int(t)])
@@ -368,6 +370,22 @@ class Planner:
         wave = np.where(rng.random((n, 1, 1)) < 0.5, np.sign(wave), wave)
         until = rng.integers(1, self.knots + 1, (n, 1, 1))
         return np.where(knots < until, np.clip(offset + amp * wave, -1.0, 1.0), 0.0)
+
+    def switching(self, rng: np.random.Generator, count: int) -> np.ndarray:
+        """``count`` bang-bang candidates (knots ``[count, knots, m]``, normalised units): per
+        action a few switches (none to four) at random knots between the corners of its range,
+        a quarter of the segments at a random level instead. Minimum-time plans are often
+        bang-bang with a few switches (a manoeuvre: back up turning one way, then drive on
+        turning the other), which neither noise around a mean nor a periodic wave produces."""
+        m, n, k = self.m, int(count), self.knots
+        switches = rng.integers(0, 5, (n, m))
+        at = np.sort(rng.integers(1, max(2, k), (n, m, 4)), axis=2)
+        at = np.where(np.arange(4)[None, None, :] < switches[:, :, None], at, k + 1)
+        segment = (np.arange(k)[None, None, :, None] >= at[:, :, None, :]).sum(axis=3)  # [n, m, knots]
+        sign = np.where(rng.random((n, m, 1)) < 0.5, -1.0, 1.0) * np.where(segment % 2 == 0, 1.0, -1.0)
+        level = np.take_along_axis(rng.uniform(-1, 1, (n, m, 5)), segment, axis=2)
+        z = np.where(np.take_along_axis(rng.random((n, m, 5)), segment, axis=2) < 0.25, level, sign)
+        return z.transpose(0, 2, 1)
 
     def ranked_periodic(self, x0: np.ndarray, rng: np.random.Generator, batches: int) -> tuple[np.ndarray, int]:
         """``batches`` batches of :meth:`periodic` candidates rolled out from ``x0``, cheapest
@@ -451,6 +469,7 @@ class Planner:
         best_t, best_z = math.inf, None
         rollouts = iters = 0
         timed_out = False
+        archive: list = []
         for it in range(b.iterations if iterations is None else int(iterations)):
             if time.perf_counter() - start > self.time_limit:
                 timed_out = True
@@ -469,6 +488,9 @@ class Planner:
                     R, island = 1, np.zeros(K, dtype=int)
                     mu, sigma = best_z[None].copy(), np.full((1,) + shape, b.refine_sigma)
             self.trace.append((steps, float(cost.min()), best_t, float(sigma.mean())))
+            if not found:  # the cheapest of each batch: where the descents start if none reaches
+                top = np.argsort(cost, kind="stable")[:4]
+                archive.extend(zip(cost[top].tolist(), z[top]))
             kept = []
             for r in range(R):
                 members = np.flatnonzero(island == r)
@@ -491,10 +513,53 @@ class Planner:
             if best_z is not None:
                 kept = np.concatenate([best_z[None], kept, self._shifted(best_z, int(best_t), rng)])[: K // 2]
             z, island = self._population(kept, mu, sigma, rng)
+        U = None if best_z is None else self.actions(best_z[None])[0, : int(best_t)]
+        if b.polish > 0 and not timed_out:
+            U, used = self.polish(x0, U, archive, rng, b.polish * K * b.iterations, start + self.time_limit)
+            rollouts += used
+            timed_out = U is None and time.perf_counter() - start > self.time_limit
         seconds = time.perf_counter() - start
-        if best_z is None:
+        if U is None:
             return PlannedState(index, x0, None, "timeout" if timed_out else "not_found", False, seconds=seconds,
                                 rollouts=rollouts, iterations=iters)
-        U = self.actions(best_z[None])[0, : int(best_t)]
-        return PlannedState(index, x0, int(best_t), "solved", False, actions=U, seconds=seconds, rollouts=rollouts,
+        return PlannedState(index, x0, len(U), "solved", False, actions=U, seconds=seconds, rollouts=rollouts,
                             iterations=iters)
+
+    def polish(self, x0: np.ndarray, actions: Optional[np.ndarray], archive: list, rng: np.random.Generator,
+               rollouts: float, deadline: float) -> tuple[Optional[np.ndarray], int]:
+        """After the sampling, within ``rollouts`` and the clock (``deadline``): where nothing
+        reached, :meth:`descend` from the cheapest distinct candidates the sampling saw
+        (``archive``: ``(cost, knots)``), then from the cheapest of fresh proposals (bang-bang
+        with a few switches, periodic, uniform noise), until one reaches; then
+        :meth:`shorten` what reached. Sampling stalls on long manoeuvres (the bicycle turning
+        round below its goal) where a descent from near them arrives; once a sequence reaches,
+        squeezing it in time and descending at the shorter horizon finds the earlier arrivals
+        that mutating single knots misses. Returns the actions (None: none reached) and the
+        rollouts spent."""
+        used, n = 0, self.budget.descents
+        if actions is None:
+            archive = sorted(archive, key=lambda e: e[0])
+            starts: list = []
+            for _, z in archive:  # distinct: some knot differs by more than a quarter of the box
+                if len(starts) < n and all(np.abs(z - s).max() > 0.5 for s in starts):
+                    starts.append(z)
+            B = max(1, n // 2) * self.K
+            fresh = np.concatenate([self.switching(rng, B), self.periodic(rng, B),
+                                    rng.uniform(-1.0, 1.0, (B, self.knots, self.m))])
+            if used + len(fresh) <= rollouts:
+                cost = np.concatenate([self.evaluate(x0, fresh[at: at + self.K], self.deadline, terminal=True)[1]
+                                       for at in range(0, len(fresh), self.K)])
+                used += len(fresh)
+                starts += list(fresh[np.argsort(cost, kind="stable")[:n]])
+            for z0 in starts:
+                if used >= rollouts or time.perf_counter() > deadline:
+                    break
+                t, z, spent = self.descend(x0, z0, 100, rollouts=rollouts - used)
+                used += spent
+                if z is not None:
+                    actions = self.actions(z[None])[0, : int(t)]
+                    break
+            if actions is None:
+                return None, used
+        found, spent = self.shorten(x0, actions, deadline, rollouts=max(0.0, rollouts - used))
+        return found[-1], used + spent
