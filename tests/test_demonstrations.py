@@ -159,3 +159,62 @@ def test_a_replay_that_ends_its_episode_stores_the_terminal_observation_and_the_
     # The next observation of a time-out is where the episode ended (in the goal), not the reset state.
     last = scaling.obs_centre + tr.next_obs[ends].astype(float) * scaling.obs_half
     assert np.all(np.abs(last[:, 0] - 1.0) <= 0.2 + 1e-6)
+
+
+# ------------------------------------------------------------------ sparse goals (exploration.py)
+def test_the_late_rule_is_the_default_presets_unless_a_run_chooses_its_demonstrations(rail):
+    from asap_dsl.backends.rl.config import resolve_config
+
+    assert resolve_config(rail).late_demonstrations == 8
+    assert resolve_config(rail, demonstrations=0).late_demonstrations == 0  # the run chose: none
+    assert resolve_config(rail, demonstrations=4).late_demonstrations == 0
+    assert resolve_config(rail, preset="paper").late_demonstrations == 0
+    assert resolve_config(rail, algo="ppo").late_demonstrations == 0  # no replay buffer: no rule
+
+
+def test_the_late_rule_fires_once_when_nothing_has_succeeded_after_its_share_of_the_budget():
+    from asap_dsl.backends.rl.exploration import LateDemonstrations
+
+    rule = LateDemonstrations(8, 0.1)
+    zero, hit = {"rates": {5: 0.0, 10: 0.0}}, {"rates": {5: 0.0, 10: 0.01}}
+    assert not rule.due([zero], 99, 1000, 1.0, None)           # 9.9% of the steps
+    assert rule.due([zero, zero], 100, 1000, 1.0, None)
+    assert not rule.due([zero, hit, zero], 500, 1000, 1.0, None)  # one state reached once: exploration works
+    assert rule.due([zero], 10, 1000, 6.0, 60.0)               # a time-limited run: 10% of its time
+    assert not LateDemonstrations(0, 0.1).due([zero], 900, 1000, 1.0, None)
+    rule.added = {"added": 3}
+    assert not rule.due([zero], 900, 1000, 1.0, None)          # once per run
+
+
+def test_a_run_that_finds_nothing_gets_the_oracles_sequences_once(tmp_path, capsys):
+    """A goal that an untrained policy never reaches (no updates: learning starts after the run)
+    gets the oracle's sequences at the first validation after 10% of the steps, recorded in the
+    manifest and the checkpoint, so that a resume does not add them again; where validation
+    succeeds from the start the rule never fires."""
+    far = RAIL.replace("init [-1.5, 1.5]", "init [-1.5, -0.5]").replace(
+        "tolerances 20, 10, 5", "tolerances 20, 10, 5\n  train { learning_starts = 10000 }")
+    spec = tmp_path / "far.asap"
+    spec.write_text(far)
+    out = tmp_path / "far"
+
+    def buffer_pos() -> int:
+        with open(out / "checkpoint" / "replay.pkl", "rb") as f:
+            return int(pickle.load(f).pos)
+
+    base = ["train", spec, "--envs", 2, "--engine", "sb3", "--no-eval", "--out", out]
+    code, _, err = asapc(capsys, *base, "--steps", 3000)
+    assert code == 0 and "no validation has succeeded after" in err, err
+    late = RunDir(out).read_manifest()["late_demonstrations"]
+    assert 300 <= late["at_step"] < 3000 and late["states"] == 8 and late["added"] == 8 and late["oracle_seconds"] > 0
+    slots = -(-late["transitions"] // 2)
+    assert buffer_pos() == slots + 3000 // 2
+    code, _, err = asapc(capsys, "train", spec, "--out", out, "--resume", "--steps", 3060, "--no-eval")
+    assert code == 0 and "no validation has succeeded after" not in err
+    assert buffer_pos() == slots + 3060 // 2  # within the buffer the run was sized for
+
+    near = tmp_path / "near.asap"  # half the init box starts in the goal: validation succeeds
+    near.write_text(far.replace("init [-1.5, -0.5]", "init [0.8, 1.6]"))
+    code, _, err = asapc(capsys, "train", near, "--steps", 400, "--envs", 2, "--engine", "sb3", "--no-eval",
+                         "--out", tmp_path / "near")
+    assert code == 0 and "no validation has succeeded" not in err
+    assert "late_demonstrations" not in RunDir(tmp_path / "near").read_manifest()

@@ -63,6 +63,7 @@ class TrainConfig:
     hyper: dict[str, Any] = field(default_factory=dict)
     time_limit: Optional[float] = None  # seconds of training; the run ends (finished) when they are spent
     demonstrations: int = 0   # initial states whose oracle sequences fill the replay buffer first (:mod:`.demonstrations`)
+    late_demonstrations: int = 0  # ... or later, when no validation has succeeded (:mod:`.exploration`)
     # Each state entry's scaling box (init, state or none: asap_dsl.observation); None in runs from
     # before it was recorded, which used observation_scaling's box for every entry.
     observation_sources: Optional[dict[str, str]] = None
@@ -74,7 +75,8 @@ class TrainConfig:
     def from_dict(cls, data: Mapping[str, Any]) -> "TrainConfig":
         names = {f.name for f in fields(cls)}
         data = {"engine": REFERENCE, **data}  # a run from before engines: stable-baselines3 trained it
-        missing = names - set(data) - {"time_limit", "demonstrations", "observation_sources"}  # runs from before them had none
+        missing = names - set(data) - {"time_limit", "demonstrations", "late_demonstrations",
+                                         "observation_sources"}  # runs from before them had none
         if missing:
             raise ConfigError(f"the stored configuration lacks {', '.join(sorted(missing))}")
         for f in fields(cls):  # a manifest edited by hand: one sentence, not a crash deep in training
@@ -144,11 +146,13 @@ def resolve_config(prog, task: Optional[str] = None, *, algo: Optional[str] = No
     if time_limit is not None and not (time_limit > 0 and time_limit < float("inf")):
         raise ConfigError(f"the time limit must be a positive number of seconds; got {time_limit}")
     demos = _demonstrations(prog, algo, demonstrations, p.demonstrations)
+    # The preset's rule for sparse goals, unless the run chose its demonstrations (0 included).
+    late = 0 if demonstrations is not None else _demonstrations(prog, algo, None, p.late_demonstrations)
     if algo in OFF_POLICY:
         # Memory for what the run can fill, no more (the paper's buffer never drops a sample);
         # demonstrations are at most one episode per state.
         hyper["buffer_size"] = int(min(int(hyper.get("buffer_size", 1_000_000)),
-                                       total + envs + demos * (t.episode[1] + 1)))
+                                       total + envs + (demos + late) * (t.episode[1] + 1)))
     elif algo == "ppo":
         rollout = int(hyper.get("n_steps", 2048)) * envs
         batch = int(hyper.get("batch_size", 64))
@@ -167,7 +171,7 @@ def resolve_config(prog, task: Optional[str] = None, *, algo: Optional[str] = No
         validation_episodes=validation_states(total, p.validation_episodes), validation_seed=VALIDATION_SEED,
         validate_every=every,
         eval_episodes=episodes, hyper=hyper, time_limit=None if time_limit is None else float(time_limit),
-        demonstrations=demos, observation_sources=sources)
+        demonstrations=demos, late_demonstrations=late, observation_sources=sources)
 
 
 def _hyperparameters(preset: Mapping[str, Any], block: Mapping[str, Any], settings: Optional[Mapping[str, Any]],
@@ -191,7 +195,7 @@ def _hyperparameters(preset: Mapping[str, Any], block: Mapping[str, Any], settin
 def _demonstrations(prog, algo: str, explicit: Optional[int], preset: int) -> int:
     """The demonstration states of a run: the explicit count (refused where there can be none),
     else the preset's where there can be some, else 0."""
-    from .demonstrations import unavailable
+    from .demonstrations import unavailable  # it imports this module
 
     why = unavailable(prog, algo)
     if explicit is None:

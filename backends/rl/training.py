@@ -31,6 +31,7 @@ from asap_dsl.sampling import task_states
 from .config import ConfigError, TrainConfig, resolve_config
 from .presets import OFF_POLICY, get_preset
 from .engines import Engine, get_engine
+from .exploration import LateDemonstrations, add_late
 from . import hyper as _hyper
 from .sb3 import PolicyController, Scaling, ScaledVecEnv
 from .validation import Schedule, log_validation, rule_text, validation_score, write_curves
@@ -174,6 +175,9 @@ class _Session:
         # A time-limited run validates on the clock too (:mod:`.validation`).
         self.schedule = Schedule(cfg.validate_every, None if cfg.time_limit is None else cfg.time_limit / self.validations)
         self.seconds_before = 0.0
+        # The default preset's rule for sparse goals (:mod:`.exploration`), None where there is none.
+        self.late = (LateDemonstrations(cfg.late_demonstrations, get_preset(cfg.preset).late_after)
+                     if cfg.late_demonstrations > 0 else None)
         self.stop = stop if stop is not None else Interrupts()
         self.time_up = False
         self.last_checkpoint = time.perf_counter()
@@ -258,12 +262,17 @@ class _Session:
         self.schedule.done(int(steps), self.seconds, time.perf_counter() - t0)
         if self.progress is not None:
             self.progress.validated(row)
+        if (self.late is not None and not self.time_up and steps < self.cfg.steps  # not after the last
+                and self.late.due(self.curves, int(steps), self.cfg.steps, self.seconds,
+                                  self.cfg.time_limit)):
+            add_late(self, model, int(steps))
         return row
 
     # -- checkpoints
     def state(self, model) -> dict:
         return {"steps": int(model.num_timesteps), "seconds": self.seconds, "best": self.best,
-                "curves": self.curves, **self.schedule.to_dict()}
+                "curves": self.curves, "late_demonstrations": None if self.late is None else self.late.added,
+                **self.schedule.to_dict()}
 
     def checkpoint(self, model, run: Optional[RunDir] = None) -> None:
         """A checkpoint of ``model`` into the run (or ``run``: a new run's first, before it is in place)."""
@@ -287,6 +296,8 @@ class _Session:
         _set_rng_state(state["rng"], self.raw_env, model, self.engine)
         self.best, self.curves = state["best"], list(state["curves"])
         self.schedule.restore(state)
+        if self.late is not None:  # added before the checkpoint: never again
+            self.late.added = state.get("late_demonstrations")
         self.seconds_before = float(state["seconds"])
         if int(model.num_timesteps) != int(state["steps"]):
             raise RunError(f"{self.run.path}: the checkpoint is inconsistent (model at step {model.num_timesteps}, "
