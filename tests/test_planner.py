@@ -140,3 +140,15 @@ def test_the_pilots_shortening_finds_the_rails_minimum_from_a_slow_sequence():
     assert len(found[0]) == 14 and len(found[-1]) == rail_minimum(0.0) and used > 0
     claims = [PlannedState(i, np.zeros(1), len(a), "solved", False, actions=a) for i, a in enumerate(found)]
     assert [(r.steps, r.verified) for r in replay_counted(prog, "go", claims)] == [(len(a), True) for a in found]
+
+
+def test_the_polish_finds_and_shortens_where_the_sampling_found_nothing():
+    """With nothing from the sampling (no archive either), the polish's descents from fresh
+    proposals reach and its shortening ends at the rail's closed-form minimum (replayed)."""
+    prog = asap_dsl.loads(RAIL, "rail.asap")
+    planner = Planner(prog, "go", PlannerBudget(samples=64))
+    x0 = np.array([-0.6])
+    actions, used = planner.polish(x0, None, [], np.random.default_rng(0), math.inf, time.perf_counter() + 30)
+    assert actions is not None and len(actions) == rail_minimum(-0.6) and used > 0
+    claim = PlannedState(0, x0, len(actions), "solved", False, actions=actions)
+    assert replay_counted(prog, "go", [claim])[0].steps == rail_minimum(-0.6)

@@ -26,7 +26,9 @@ where ``v_t = max(0, -rho_t)`` is how far ``asap``'s robustness is from holding 
 at most t, one that only comes close is ranked by how close and how soon. A failure before
 reaching adds ``D``. The elite (the cheapest ``elite`` share) sets the next mean and spread
 (smoothed); the best elites are carried over. Once a sequence reaches at step N, candidates are
-rolled out for N - 1 steps only: only an earlier arrival can improve on it.
+rolled out for N - 1 steps only: only an earlier arrival can improve on it. Then the polish
+(:meth:`Planner.polish`, within ``polish`` times the sampling's rollouts): descents where nothing
+reached, and the shortening of what did.
 
 Budget: ``samples`` candidates per iteration, ``iterations`` iterations, and the per-state time
 limit (as the oracle's ``--state-time-limit``). The random numbers of a state are seeded by the

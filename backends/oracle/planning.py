@@ -213,7 +213,9 @@ def _pilot(prog, planner: Planner, budget: PlannerBudget, time_limit: float, see
     centre = np.where(np.isfinite(lo) & np.isfinite(hi), (lo + hi) / 2, 0.0)
     if budget.pilot < 1:
         return PlannedState(-1, centre, None, "not_found", False), []
-    coarse = replace(budget, hold=max(budget.hold, budget.pilot_hold))
+    # no polish: the pilot has its own descents and shortening below (on the swimmer's costly
+    # rollouts the polish's would spend the pilot's whole time limit before them)
+    coarse = replace(budget, hold=max(budget.hold, budget.pilot_hold), polish=0.0)
     pilot = Planner(prog, planner.task_name, coarse, time_limit * budget.pilot, seed)
     start = time.perf_counter()
     until = start + time_limit * budget.pilot
