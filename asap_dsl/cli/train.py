@@ -168,8 +168,9 @@ def train_command(args: argparse.Namespace, out: Optional[TextIO] = None, err: O
         out.write(f"best validation (step {best['steps']:,}): {validation_text(best, None)}\n")
     if result.never_succeeded:
         out.write(f"no validation succeeded ({len(result.curves)} on {result.config.validation_episodes:,} states, 0% at "
-                  f"every tolerance): model.zip is the latest policy (step {best['steps']:,}); more steps or more "
-                  "exploration (train { use_sde = true }) may find the goal\n")
+                  f"every tolerance): model.zip is the latest policy (step {best['steps']:,}); more steps, or the "
+                  "oracle's sequences in the replay buffer (--demonstrations 8; measured: gSDE alone did not "
+                  "help, docs/training.md), may find the goal\n")
     if result.evaluation is not None:
         out.write("\n" + result.evaluation.render() + "\n")
         if not (result.evaluation.oracle or {}).get("bound") and prog.system.kind != "simulator":
