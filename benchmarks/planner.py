@@ -14,7 +14,7 @@ made consistent (``tighten_planned``); the achievable rates, the steps' distribu
 
     .venv/bin/python benchmarks/planner.py --validate [--states 200] [--workers 2] [--samples N] [--iterations N]
                                            [--polish X] [--specs dc_motor,bicycle] [--tasks reach_avoid,reach] [--out FILE]
-    .venv/bin/python benchmarks/planner.py --swimmer [--states 200] [--workers 2] [--iterations N] [--polish X]
+    .venv/bin/python benchmarks/planner.py --swimmer [--states 200] [--workers 2] [--iterations N] [--polish X] [--shorten-seconds S]
 """
 
 from __future__ import annotations
@@ -132,11 +132,14 @@ def main() -> int:
     ap.add_argument("--iterations", type=int, default=PlannerBudget.iterations)
     ap.add_argument("--polish", type=float, default=PlannerBudget.polish,
                     help="the descents' and shortening's rollouts, in multiples of samples x iterations (0: none)")
+    ap.add_argument("--shorten-seconds", type=float, default=PlannerBudget.shorten_seconds,
+                    help="the polish's shortening of a found sequence: wall time per state at most")
     ap.add_argument("--specs", default="dc_motor,bicycle", help="the specs to validate on (comma-separated)")
     ap.add_argument("--tasks", default="reach_avoid,reach", help="their tasks, in this order (comma-separated)")
     ap.add_argument("--out", type=Path, help="--validate: every state's steps (oracle and planner) as JSON")
     args = ap.parse_args()
-    budget = PlannerBudget(samples=args.samples, iterations=args.iterations, polish=args.polish)
+    budget = PlannerBudget(samples=args.samples, iterations=args.iterations, polish=args.polish,
+                           shorten_seconds=args.shorten_seconds)
     print(f"budget: {json.dumps(budget.to_dict())}")
     if args.validate:
         t0 = time.perf_counter()

@@ -152,3 +152,19 @@ def test_the_polish_finds_and_shortens_where_the_sampling_found_nothing():
     assert actions is not None and len(actions) == rail_minimum(-0.6) and used > 0
     claim = PlannedState(0, x0, len(actions), "solved", False, actions=actions)
     assert replay_counted(prog, "go", [claim])[0].steps == rail_minimum(-0.6)
+
+
+def test_the_shortenings_clock_is_bounded_and_finding_keeps_the_whole_budget():
+    """``shorten_seconds`` bounds the shortening of a found sequence (0: kept as found, no
+    rollout spent), never the search where nothing reached: with it at 0 the polish still finds a
+    sequence from nothing. A negative bound is one sentence."""
+    prog = asap_dsl.loads(RAIL, "rail.asap")
+    planner = Planner(prog, "go", PlannerBudget(samples=64, shorten_seconds=0.0))
+    slow = np.full((14, 1), 0.3)
+    actions, used = planner.polish(np.zeros(1), slow, [], np.random.default_rng(0), math.inf, time.perf_counter() + 30)
+    assert used == 0 and np.array_equal(actions, slow)
+    actions, used = planner.polish(np.array([-0.6]), None, [], np.random.default_rng(0), math.inf,
+                                   time.perf_counter() + 30)
+    assert actions is not None and used > 0 and len(actions) >= rail_minimum(-0.6)
+    with pytest.raises(ValueError, match="shorten_seconds must be a finite number, at least 0"):
+        PlannerBudget(shorten_seconds=-1.0)

@@ -90,6 +90,7 @@ class PlannerBudget:
     refine_sigma: float = 0.3
     floor: float = 0.02
     polish: float = 30.0
+    shorten_seconds: float = 2.0
     descents: int = 8
 
     def __post_init__(self):
@@ -101,6 +102,10 @@ class PlannerBudget:
                 raise ValueError(f"the planner's {name} must be a whole number, at least 1; got {v!r}")
         if self.samples < 8:
             raise ValueError(f"the planner needs at least 8 samples per iteration; got {self.samples}")
+        for name in ("polish", "shorten_seconds"):
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or not v >= 0 or not math.isfinite(v):
+                raise ValueError(f"the planner's {name} must be a finite number, at least 0; got {v!r}")
 
     def to_dict(self) -> dict:
         return asdict(self)
@@ -270,13 +275,14 @@ class Planner:
                        seconds=base.seconds + time.perf_counter() - start)
 
     def descend(self, x0: np.ndarray, z0: np.ndarray, iterations: int = 60, horizon: Optional[int] = None,
-                rollouts: float = math.inf) -> tuple[float, Optional[np.ndarray], int]:
+                rollouts: float = math.inf, until: float = math.inf) -> tuple[float, Optional[np.ndarray], int]:
         """A local search from the knots ``z0``: L-BFGS-B on the terminal cost at ``horizon``
         (default the deadline), its gradient from central differences of the knots before it all
         at once (one batch of ``2 knots m + 1`` rollouts). For the pilot, when sampling around
         "do nothing" finds no way (moving first takes the swimmer away from its goal), and to
         shorten what it found. Returns ``(steps, knots, rollouts)`` of the first candidate that
-        reached within ``horizon`` (``inf, None`` if none); it stops once it has spent ``rollouts``."""
+        reached within ``horizon`` (``inf, None`` if none); it stops once it has spent ``rollouts``
+        or the clock passes ``until`` (:func:`time.perf_counter`)."""
         import scipy.optimize
 
         h = self.deadline if horizon is None else max(1, min(int(horizon), self.deadline))
@@ -300,7 +306,7 @@ class Planner:
             if t_reach[k] < found[0]:
                 found[0], found[1] = float(t_reach[k]), zs[k].copy()
             g = (cost[1: D + 1] - cost[D + 1:]) / (2 * eps)
-            if found[1] is not None or used[0] >= rollouts:
+            if found[1] is not None or used[0] >= rollouts or time.perf_counter() > until:
                 raise StopIteration
             return float(cost[0]), g
 
@@ -325,7 +331,8 @@ class Planner:
             cur = out[-1]
             h = max(1, len(cur) - cut)
             squeezed = cur[np.floor(np.arange(h) * len(cur) / h).astype(int)]
-            t, z, spent = self.descend(x0, self._to_knots(squeezed), iterations, horizon=h, rollouts=rollouts - used)
+            t, z, spent = self.descend(x0, self._to_knots(squeezed), iterations, horizon=h, rollouts=rollouts - used,
+                                       until=deadline)
             used += spent
             if z is not None:
                 out.append(self.actions(z[None])[0, : int(t)])
@@ -533,7 +540,9 @@ class Planner:
         reached, :meth:`descend` from the cheapest distinct candidates the sampling saw
         (``archive``: ``(cost, knots)``), then from the cheapest of fresh proposals (bang-bang
         with a few switches, periodic, uniform noise), until one reaches; then
-        :meth:`shorten` what reached. Sampling stalls on long manoeuvres (the bicycle turning
+        :meth:`shorten` what reached, for at most ``shorten_seconds`` of the clock (on a costly
+        simulator, the swimmer's, shortening a found sequence takes many descents for a step or
+        two; finding one where nothing reached keeps the whole budget). Sampling stalls on long manoeuvres (the bicycle turning
         round below its goal) where a descent from near them arrives; once a sequence reaches,
         squeezing it in time and descending at the shorter horizon finds the earlier arrivals
         that mutating single knots misses. Returns the actions (None: none reached) and the
@@ -556,12 +565,13 @@ class Planner:
             for z0 in starts:
                 if used >= rollouts or time.perf_counter() > deadline:
                     break
-                t, z, spent = self.descend(x0, z0, 100, rollouts=rollouts - used)
+                t, z, spent = self.descend(x0, z0, 100, rollouts=rollouts - used, until=deadline)
                 used += spent
                 if z is not None:
                     actions = self.actions(z[None])[0, : int(t)]
                     break
             if actions is None:
                 return None, used
-        found, spent = self.shorten(x0, actions, deadline, rollouts=max(0.0, rollouts - used))
+        until = min(deadline, time.perf_counter() + self.budget.shorten_seconds)
+        found, spent = self.shorten(x0, actions, until, rollouts=max(0.0, rollouts - used))
         return found[-1], used + spent
