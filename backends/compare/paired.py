@@ -15,7 +15,7 @@ import numpy as np
 
 from asap_dsl.rollout import Evaluator
 from asap_dsl.processes import Interrupts
-from asap_dsl.runfiles import lock_dir, shown, writing
+from asap_dsl.runfiles import command_line, lock_dir, shown, writing
 from asap_dsl.runs import RunError, atomic_write_json, json_safe, package_versions, spec_hash
 from asap_dsl.sampling import EVAL_SEED, task_states
 
@@ -23,7 +23,7 @@ from . import phase_plots, plots
 from .report import REWARD_NAMES, Column, Method, ReportData, unique, write
 from .sweep import Job, SweepInterrupted, execute, load_result, plan
 
-__all__ = ["CompareResult", "compare"]
+__all__ = ["CompareResult", "check_tolerances", "compare", "robustness_until_reach"]
 
 
 @dataclass
@@ -97,10 +97,20 @@ def _examples(prog, task: str, result: dict, oracle, states: np.ndarray, title: 
     label = f"{REWARD_NAMES.get(j['reward'], j['reward'])} ({j['algo']})"
     phase, res, ores = example(prog, task, states[:n], loaded.controller(), oracle, title=title, label=label)
 
-    def rho(res):
-        return [asap.robustness(res.trajectories[i, : res.end_step[i] + 1]).tolist() for i in range(res.episodes)]
+    def reached(res):
+        return [bool(np.isfinite(t)) for t in res.t_reach]
 
-    return {"policy": rho(res), "oracle": None if ores is None else rho(ores), "label": label, "phase": phase}
+    return {"policy": robustness_until_reach(asap, res), "label": label, "phase": phase,
+            "oracle": None if ores is None else robustness_until_reach(asap, ores),
+            "policy_reached": reached(res), "oracle_reached": None if ores is None else reached(ores)}
+
+
+def robustness_until_reach(asap, res) -> list[list[float]]:
+    """The robustness of ``asap`` along each recorded episode of ``res``, up to its reach point
+    (or its end where it never reached): after it the task is done, and an oracle's replay plays
+    zeros once its sequence ends, which would draw a drift no controller chose."""
+    ends = [int(t) if np.isfinite(t) else int(e) for t, e in zip(res.t_reach, res.end_step)]
+    return [asap.robustness(res.trajectories[i, : ends[i] + 1]).tolist() for i in range(res.episodes)]
 
 
 def compare(specs: Sequence[str], *, tasks: Optional[Sequence[str]] = None,
@@ -109,9 +119,12 @@ def compare(specs: Sequence[str], *, tasks: Optional[Sequence[str]] = None,
             out: str = "reports/compare", episodes: int = 1000,
             on_event: Optional[Callable[[str, Job, Optional[dict]], None]] = None,
             oracle_workers: Optional[int] = None, ray_timeout: float = 30.0,
-            engine: Optional[str] = None) -> CompareResult:
+            engine: Optional[str] = None, table2_tolerances: Sequence[int] = ()) -> CompareResult:
     """Train what is missing, evaluate everything on the same states, write the report.
     ``engine`` (sbx or sb3) trains every run; None: the preset's engine where it has the algorithm.
+    ``table2_tolerances``: Table 2 within these steps too, beside every tolerance of the spec (the
+    paper's Table 2 tolerance: 30 DC motor, 20 bicycle and attitude, 50 swimmer); each at most
+    every task's deadline (:func:`check_tolerances`, ``ValueError``).
 
     Holds ``out``'s exclusive lock throughout (a second compare on it is refused, naming the
     first). Runs that cannot be used (failed, damaged) are left out of the tables, named in the
@@ -121,6 +134,8 @@ def compare(specs: Sequence[str], *, tasks: Optional[Sequence[str]] = None,
     :class:`asap_dsl.runs.RunError` for an ``out`` that cannot be used.
     """
     start = time.perf_counter()
+    if table2_tolerances:
+        check_tolerances(plan(specs, tasks, list(rewards), list(algos), 1, preset, steps, engine), table2_tolerances)
     out_dir = Path(out).expanduser().resolve()
     if out_dir.exists() and not out_dir.is_dir():
         raise RunError(f"--out {shown(out_dir)} is a file; compare writes a directory (its report and runs)")
@@ -133,12 +148,31 @@ def compare(specs: Sequence[str], *, tasks: Optional[Sequence[str]] = None,
             Interrupts(raise_outside=True):
         try:
             return _compare(specs, tasks, rewards, algos, seeds, steps, preset, workers, ray, out_dir, episodes,
-                            on_event, oracle_workers, ray_timeout, start, phase, results, engine)
+                            on_event, oracle_workers, ray_timeout, start, phase, results, engine,
+                            sorted({int(T) for T in table2_tolerances}, reverse=True))
         except KeyboardInterrupt:
             raise SweepInterrupted(results, phase[0]) from None
         except SweepInterrupted as err:
             err.phase = phase[0]
             raise
+
+
+def check_tolerances(jobs: Sequence[Job], tolerances: Sequence[int]) -> None:
+    """``ValueError`` (one sentence) for a Table 2 tolerance under 1 step or beyond the deadline of
+    one of the sweep's tasks (an episode ends at its deadline: nothing is measured beyond it)."""
+    import asap_dsl
+
+    for T in tolerances:
+        if int(T) < 1:
+            raise ValueError(f"a tolerance is at least 1 step, got {T}")
+    progs: dict = {}
+    for job in jobs:
+        prog = progs.setdefault(job.spec, asap_dsl.load(job.spec))
+        deadline = prog.task(job.task).model.deadline
+        for T in tolerances:
+            if int(T) > deadline:
+                raise ValueError(f"tolerance {T} is beyond the deadline of {Path(job.spec).stem} {job.task} "
+                                 f"({deadline} steps: its episodes end there)")
 
 
 def column_labels(specs: Sequence[str]) -> dict[str, str]:
@@ -155,7 +189,8 @@ def column_labels(specs: Sequence[str]) -> dict[str, str]:
 
 
 def _compare(specs, tasks, rewards, algos, seeds, steps, preset, workers, ray, out_dir: Path, episodes, on_event,
-             oracle_workers, ray_timeout, start, phase: list, results: list, engine=None) -> CompareResult:
+             oracle_workers, ray_timeout, start, phase: list, results: list, engine=None,
+             table2_tolerances: Sequence[int] = ()) -> CompareResult:
     import asap_dsl
 
     from ..oracle.cache import oracle_for
@@ -204,9 +239,14 @@ def _compare(specs, tasks, rewards, algos, seeds, steps, preset, workers, ray, o
         phase[0] = "the evaluations"
         col = Column(job.spec, job.task, list(tm.tolerances), tm.deadline, label=labels.get(job.spec))
         if oracle is not None:
-            col.ceiling = {T: oracle.ceiling(T) for T in tm.tolerances}
+            col.ceiling = {T: oracle.ceiling(T) for T in sorted({*tm.tolerances, *table2_tolerances}) if T <= tm.deadline}
             col.bound = oracle.bound
             col.oracle_steps = [None if not np.isfinite(x) else int(x) for x in oracle.steps]
+        elif prog.system.kind == "simulator":  # compare never plans: minutes per hundred states
+            cmd = command_line(["asapc", "oracle", job.spec, "--task", job.task, "--episodes", str(episodes)])
+            notes.append(f"{col.name}: no ceiling: the planner's achievable steps are not cached for these "
+                         f"{episodes:,} states; `{cmd}` plans them (minutes per hundred states), then the same "
+                         "compare reads them")
         columns.append(col)
         states = task_states(prog.system, tm, episodes, seed=EVAL_SEED)
         for method, kind in ((greedy, "greedy"), (replay, "oracle")):
@@ -227,8 +267,8 @@ def _compare(specs, tasks, rewards, algos, seeds, steps, preset, workers, ray, o
                 table1[j["reward"]].evaluations.setdefault(col.name, []).append(ev)
             if j["reward"] == rewards[0] and j["algo"] in table2:
                 table2[j["algo"]].evaluations.setdefault(col.name, []).append(ev)
-            curves.setdefault(col.name, []).append((f"{REWARD_NAMES.get(j['reward'], j['reward'])} {j['algo']} "
-                                                    f"s{j['seed']}", r["curves"]))
+            curves.setdefault(col.name, []).append((f"{REWARD_NAMES.get(j['reward'], j['reward'])} ({j['algo']})",
+                                                    r["curves"]))
         first = [r for r in mine if r["job"]["algo"] == algos[0] and r["job"]["reward"] == rewards[0]]
         if first:
             examples[col.name] = _examples(prog, job.task, sorted(first, key=lambda r: r["job"]["seed"])[0], oracle,
@@ -242,7 +282,8 @@ def _compare(specs, tasks, rewards, algos, seeds, steps, preset, workers, ray, o
             for r in loaded]
     phase[0] = "the report"
     data = ReportData(title="ASAP-Phi comparison: " + ", ".join(sorted(set(labels.values()))),
-                      columns=columns, table1=t1, table2=t2, runs=runs, notes=notes, versions=package_versions())
+                      columns=columns, table1=t1, table2=t2, runs=runs, notes=notes, versions=package_versions(),
+                      table2_tolerances=list(table2_tolerances))
     figures = {
         "state_space": phase_plots.state_space([ex["phase"] for ex in examples.values()]),
         "success_vs_tolerance": plots.success_vs_tolerance(columns, unique(t1 + t2) + [replay]),

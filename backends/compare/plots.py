@@ -163,11 +163,15 @@ def trajectories(columns, examples: dict) -> Optional[bytes]:
     plt, fig, axes = _figure(len(cols), height=4.6)
     for ax, col in zip(axes.flat, cols):
         ex = examples[col.name]
-        for i, rho in enumerate(ex["policy"]):
-            ax.plot(np.arange(len(rho)), rho, color=f"C{i % 10}", lw=1.8, label=_start_label(i, ex))
-        for i, rho in enumerate(ex.get("oracle") or []):
-            if rho is not None:
-                ax.plot(np.arange(len(rho)), rho, color=f"C{i % 10}", lw=1.4, ls="--")
+        for who, ls, lw in (("policy", "-", 1.8), ("oracle", "--", 1.4)):
+            reached = ex.get(f"{who}_reached") or []
+            for i, rho in enumerate(ex.get(who) or []):
+                if rho is None:
+                    continue
+                label = _start_label(i, ex) if who == "policy" else None
+                ax.plot(np.arange(len(rho)), rho, color=f"C{i % 10}", lw=lw, ls=ls, label=label)
+                if i < len(reached) and reached[i]:  # each curve ends at its reach point
+                    ax.plot(len(rho) - 1, rho[-1], marker="*", ms=11, mfc="white", mec="k", ls="none")
         ax.axhline(0, color="k", lw=0.8)
         ax.set_title(f"{col.name}: {ex['label']}", fontsize=10)
         ax.set_xlabel("step")
@@ -176,8 +180,9 @@ def trajectories(columns, examples: dict) -> Optional[bytes]:
         ax.legend(loc="upper left", bbox_to_anchor=(0.0, -0.16), frameon=False, fontsize=9)  # under the panel
     _hide_unused(axes, len(cols))
     style = [Line2D([], [], color="k", lw=1.8, label="policy (solid)"),
-             Line2D([], [], color="k", lw=1.4, ls="--", label="oracle (dashed)")]
-    fig.legend(handles=style, loc="upper center", ncol=2, frameon=False, bbox_to_anchor=(0.5, 1.0))
+             Line2D([], [], color="k", lw=1.4, ls="--", label="oracle (dashed)"),
+             Line2D([], [], marker="*", ms=11, mfc="white", mec="k", ls="none", label="reach point (the curve ends)")]
+    fig.legend(handles=style, loc="upper center", ncol=3, frameon=False, bbox_to_anchor=(0.5, 1.0))
     buf = io.BytesIO()
     fig.tight_layout(rect=(0, 0, 1, 1 - 0.35 / fig.get_figheight()))
     fig.savefig(buf, format="png", dpi=DPI)
@@ -189,13 +194,21 @@ _DASHES = ["-", "--", ":", "-."]
 
 
 def training_curves(columns, curves: dict) -> Optional[bytes]:
-    """``curves[column name] = [(label, rows)]`` with rows from ``curves.csv``: the validation
-    success at every tolerance (one colour per run, one line style per tolerance) against wall time
-    (top) and steps (middle), and the validation return against steps (bottom) where the runs
-    recorded it (a ``return`` column)."""
+    """``curves[column name] = [(method label, rows)]``, one entry per run (a method's seeds share
+    its label), with rows from ``curves.csv``: the validation success at every tolerance (one
+    colour per method, its seeds alike; one line style per tolerance) against wall time (top) and
+    steps (middle), and the validation return against steps (bottom) where the runs recorded it (a
+    ``return`` column). The legend names each method and each tolerance once."""
+    from matplotlib.lines import Line2D
+
     cols = [c for c in columns if curves.get(c.name)]
     if not cols:
         return None
+    methods = list(dict.fromkeys(label for c in cols for label, _ in curves[c.name]))
+    palette = [f"C{i}" for i in range(10)] if len(methods) <= 10 else [pyplot().cm.tab20(i % 20) for i in range(len(methods))]
+    colour = {m: palette[i % len(palette)] for i, m in enumerate(methods)}
+    tols = sorted({T for c in cols for T in c.tolerances}, reverse=True)
+    dash = {T: _DASHES[d % len(_DASHES)] for d, T in enumerate(tols)}
     has_return = any("return" in r for c in cols for _, rows in curves[c.name] for r in rows)
     per = 3 if has_return else 2
     plt, fig, axes = _figure(len(cols), height=3.0, rows_of=per)
@@ -203,21 +216,20 @@ def training_curves(columns, curves: dict) -> Optional[bytes]:
     for j, col in enumerate(cols):
         panels = [axes[per * (j // ncols) + r, j % ncols] for r in range(per)]
         top, middle = panels[0], panels[1]
-        tols = sorted(col.tolerances, reverse=True)
-        for c, (label, rows) in enumerate(curves[col.name]):
-            for d, T in enumerate(tols):
+        for label, rows in curves[col.name]:
+            for T in sorted(col.tolerances, reverse=True):
                 key = f"success_{T}"
                 have = [r for r in rows if key in r]
                 if not have:
                     continue
                 y = [100 * float(r[key]) for r in have]
-                style = dict(color=f"C{c % 10}", ls=_DASHES[d % len(_DASHES)], lw=1.5, label=f"{label}, within {T}")
+                style = dict(color=colour[label], ls=dash[T], lw=1.4, alpha=0.85)
                 top.plot([float(r["seconds"]) for r in have], y, **style)
                 middle.plot([int(r["steps"]) for r in have], y, **style)
             if has_return:
                 have = [r for r in rows if "return" in r]
                 panels[2].plot([int(r["steps"]) for r in have], [float(r["return"]) for r in have],
-                               color=f"C{c % 10}", lw=1.5, label=f"{label}, return")
+                               color=colour[label], lw=1.4, alpha=0.85)
         top.set_title(f"{col.name}: validation success", fontsize=10)
         top.set_xlabel("wall time (s)")
         middle.set_xlabel("environment steps")
@@ -227,10 +239,11 @@ def training_curves(columns, curves: dict) -> Optional[bytes]:
             ax.grid(alpha=0.3)
         if has_return:
             panels[2].set_xlabel("environment steps")
-            panels[2].set_ylabel("validation return")
+            panels[2].set_ylabel("validation return\n(each reward its own scale)")
             panels[2].grid(alpha=0.3)
     for ax in axes.flat:
         if not ax.has_data():
             ax.axis("off")
-    handles, labels = _handles(axes)
-    return _png(plt, fig, _legend_below(fig, handles, labels, ncol=min(len(handles), 3)))
+    handles = [Line2D([], [], color=colour[m], lw=2, label=m) for m in methods]
+    handles += [Line2D([], [], color="k", ls=dash[T], lw=1.4, label=f"within {T}") for T in tols]
+    return _png(plt, fig, _legend_below(fig, handles, [h.get_label() for h in handles], ncol=min(len(handles), 4)))

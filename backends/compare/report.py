@@ -17,11 +17,13 @@ import base64
 import html
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Optional
+from typing import Optional, Sequence
+
+import numpy as np
 
 from asap_dsl.formatting import percent
 from asap_dsl.runs import atomic_write
-from asap_dsl.stats import mean_spread, wilson_interval
+from asap_dsl.stats import mean_spread, rate, wilson_interval
 
 __all__ = ["Column", "Method", "ReportData", "markdown", "html_page", "write"]
 
@@ -47,6 +49,19 @@ class Column:
         return f"{self.label or Path(self.spec).stem} {short}"
 
 
+def evaluation_row(ev: dict, T: int) -> Optional[dict]:
+    """An evaluation's ``{"count", "states", "rate", ...}`` within ``T`` steps: its row where it was
+    judged at ``T``, else counted from its states' steps to reach (any ``T`` up to the deadline:
+    a tolerance the spec does not name, such as the paper's Table 2's); None without either."""
+    for row in ev.get("rows") or []:
+        if row["tolerance"] == T:
+            return row
+    steps = (ev.get("per_state") or {}).get("t_reach")
+    if steps is None:
+        return None
+    return rate(np.array([x is not None and x <= T for x in steps], dtype=bool))
+
+
 @dataclass
 class Method:
     """A row: one method (reward × algorithm, or a non-RL controller) and its evaluations per
@@ -61,11 +76,11 @@ class Method:
         evs = self.evaluations.get(col) or []
         rates, k, n = [], 0, 0
         for ev in evs:
-            for row in ev["rows"]:
-                if row["tolerance"] == T and row["rate"] is not None:
-                    rates.append(row["rate"])
-                    k += row["count"]
-                    n += row["states"]
+            row = evaluation_row(ev, T)
+            if row is not None and row["rate"] is not None:
+                rates.append(row["rate"])
+                k += row["count"]
+                n += row["states"]
         if not rates:
             return None
         ms = mean_spread(rates)
@@ -85,6 +100,8 @@ class ReportData:
     table1: list[Method]      # rewards (first algorithm) + greedy
     table2: list[Method]      # algorithms (first reward)
     runs: list[dict]          # what was run: label, spec hash, seed, preset, steps, seconds, versions
+    # Table 2 also within these (the paper's Table 2 tolerance where the spec does not name it).
+    table2_tolerances: list[int] = field(default_factory=list)
     plots: dict[str, bytes] = field(default_factory=dict)  # name -> PNG
     notes: list[str] = field(default_factory=list)
     versions: dict[str, str] = field(default_factory=dict)
@@ -113,29 +130,59 @@ def _best(methods: list[Method], col: str, T: int) -> Optional[float]:
     return max(vals)
 
 
-def _tolerances(columns: list[Column]) -> list[int]:
-    return sorted({T for c in columns for T in c.tolerances}, reverse=True)
+def _tolerances(columns: list[Column], extra: Sequence[int] = ()) -> list[int]:
+    return sorted({T for c in columns for T in c.tolerances} | set(extra), reverse=True)
 
 
-def table_rows(methods: list[Method], columns: list[Column], md: bool) -> list[list[str]]:
-    """Rows of a Table-1-style block: for each tolerance, each method, then the ceiling."""
+def ceiling_label(columns: list[Column]) -> str:
+    """The ceiling row's name: ``oracle ceiling`` for known dynamics, ``planner (achievable)`` where
+    every ceiling is the planner's (a black box: a lower bound on the true ceiling), ``ceiling``
+    for a mix (each planner cell then says so)."""
+    bounds = {_planned(c) for c in columns if c.ceiling}
+    if bounds == {True}:
+        return PLANNER
+    return "ceiling" if bounds == {True, False} else "oracle ceiling"
+
+
+PLANNER = "planner (achievable)"
+
+
+def _planned(col: Column) -> bool:
+    return (col.bound or "").startswith("planner")
+
+
+def table_rows(methods: list[Method], columns: list[Column], md: bool, extra: Sequence[int] = ()) -> list[list[str]]:
+    """Rows of a Table-1-style block: for each tolerance (the spec's, and ``extra`` up to each
+    column's deadline), each method, then the ceiling."""
     rows = []
-    for T in _tolerances(columns):
+    label = ceiling_label(columns)
+    for T in _tolerances(columns, extra):
+        shown = {col.name: T in col.tolerances or (T in extra and T <= col.deadline) for col in columns}
         for m in methods:
             row = [str(T), m.label]
             for col in columns:
-                c = m.cell(col.name, T) if T in col.tolerances else None
+                c = m.cell(col.name, T) if shown[col.name] else None
                 best = _best(methods, col.name, T)
                 row.append(_cell_text(c, c is not None and best is not None and c["mean"] >= best - 1e-12 and m.kind != "oracle", md))
             rows.append(row)
-        ceil = [str(T), "oracle ceiling"]
+        ceil = [str(T), label]
         for col in columns:
-            r = (col.ceiling or {}).get(T)
-            planned = (col.bound or "").startswith("planner")  # achievable: a lower bound on the ceiling
-            ceil.append("—" if r is None else f"{_pct(r['rate'])} [{_pct(r['ci95'][0])}, {_pct(r['ci95'][1])}]"
-                        + (f" {col.bound}" if planned else ""))
+            r = (col.ceiling or {}).get(T) if shown[col.name] else None
+            mark = f" {col.bound}" if label == "ceiling" and _planned(col) else ""  # achievable: a lower bound
+            ceil.append("—" if r is None else f"{_pct(r['rate'])} [{_pct(r['ci95'][0])}, {_pct(r['ci95'][1])}]" + mark)
         rows.append(ceil)
     return rows
+
+
+def table2_caption(data: "ReportData") -> Optional[str]:
+    """What Table 2's extra tolerances are, where some column's spec does not name them."""
+    extra = [T for T in sorted(data.table2_tolerances, reverse=True)
+             if any(T not in c.tolerances and T <= c.deadline for c in data.columns)]
+    if not extra:
+        return None
+    within = ", ".join(str(T) for T in extra)
+    return (f"Within {within} steps (`--table2-tolerances`; not a tolerance of every spec): each state's steps to "
+            "reach counted against it, for the runs and the ceiling alike.")
 
 
 def gap_rows(methods: list[Method], columns: list[Column]) -> list[list[str]]:
@@ -159,7 +206,7 @@ def _bounds(columns: list[Column]) -> str:
     parts = []
     missing = "no ceiling (an unsupported task, or a black box without `asapc oracle`'s planner (achievable))"
     for c in columns:
-        parts.append(f"{c.name}: {c.bound or missing}")
+        parts.append(f"{c.name}: {c.bound or missing}" + (", a lower bound on the true ceiling" if _planned(c) else ""))
     return "; ".join(parts)
 
 
@@ -180,7 +227,9 @@ def markdown(data: ReportData, plot_dir: str = "plots") -> str:
              "[95% Wilson interval of the pooled successes]; the best per column in bold (none where all tie). Ceiling: " + _bounds(cols) + ".",
              "", "## Table 1 — rewards", "", _md_table(header, table_rows(data.table1, cols, md=True)), ""]
     if data.table2:
-        lines += ["## Table 2 — algorithms", "", _md_table(header, table_rows(data.table2, cols, md=True)), ""]
+        note = table2_caption(data)
+        lines += ["## Table 2 — algorithms", ""] + ([note, ""] if note else []) + \
+                 [_md_table(header, table_rows(data.table2, cols, md=True, extra=data.table2_tolerances)), ""]
     lines += ["## ASAP gap", "",
               "Median over the states both reach of (method's steps) / (oracle's minimum); 1.000 is the physical limit "
               "(mean ± standard deviation over seeds).", "",
@@ -245,10 +294,14 @@ def html_page(data: ReportData) -> str:
             "over seeds, [95% Wilson interval of the pooled successes]; the best per column in bold (none where all tie). "
             "Ceiling: "
             + html.escape(_bounds(cols)) + ".</p>",
-            "<h2>Table 1 — rewards</h2>", _html_table(header, _escape_rows(table_rows(data.table1, cols, md=False), 2), "table1")]
+            "<h2>Table 1 — rewards</h2>",
+            _html_table(header, _escape_rows(table_rows(data.table1, cols, md=False), 2), "table1", ceiling_label(cols))]
     if data.table2:
-        body += ["<h2>Table 2 — algorithms</h2>",
-                 _html_table(header, _escape_rows(table_rows(data.table2, cols, md=False), 2), "table2")]
+        note = table2_caption(data)
+        body += ["<h2>Table 2 — algorithms</h2>"]
+        body += [f'<p class="caption">{html.escape(note.replace("`", ""))}</p>'] if note else []
+        body += [_html_table(header, _escape_rows(table_rows(data.table2, cols, md=False, extra=data.table2_tolerances), 2),
+                             "table2", ceiling_label(cols))]
     body += ["<h2>ASAP gap</h2>",
              '<p class="caption">Median over the states both reach of (method\'s steps) / (oracle\'s minimum); 1.000 is '
              "the physical limit (mean ± standard deviation over seeds).</p>",

@@ -1,0 +1,138 @@
+"""The comparison report's tables and figures from plain data (no training): Table 2 at a
+tolerance the spec does not name, the ceiling row named after its bound, the robustness curves
+ending at the reach point, and the training curves of many runs."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import asap_dsl
+from asap_dsl import cli
+
+
+def _ev(t_reach: list, tolerances=(30, 25, 15)) -> dict:
+    """An evaluation as a run's eval.json holds it: rows at the spec's tolerances, steps per state."""
+    from asap_dsl.stats import rate
+
+    rows = [{"tolerance": T, **rate(np.array([t is not None and t <= T for t in t_reach]))} for T in tolerances]
+    return {"rows": rows, "per_state": {"t_reach": t_reach}}
+
+
+def _column(name: str, bound: str, steps: list):
+    from asap_dsl.backends.compare.report import Column
+    from asap_dsl.stats import rate
+
+    col = Column(f"/x/{name}.asap", "reach", [30, 25, 15], 30, label=name)
+    o = np.array([np.inf if s is None else s for s in steps], float)
+    col.ceiling = {T: {"tolerance": T, **rate(o <= T)} for T in (30, 25, 20, 15)}
+    col.bound = bound
+    return col
+
+
+STEPS = [5, 12, 18, 22, 28, None, 19, 21, 14, 30]  # within 20: 5, 12, 18, 19, 14 -> 50%
+
+
+def test_table2_shows_a_tolerance_the_spec_does_not_name_counted_from_each_states_steps():
+    from asap_dsl.backends.compare.report import Method, ReportData, markdown, table_rows
+
+    col = _column("bicycle", "oracle (local)", [4, 10, 15, 18, 20, 25, 12, 19, 13, 29])
+    m = Method("asap/sac", "ASAP-Phi (sac)", "rl", {col.name: [_ev(STEPS), _ev(STEPS[::-1])]})
+    rows = {(r[0], r[1]): r[2] for r in table_rows([m], [col], md=True, extra=[20])}
+    assert [r[0] for r in table_rows([m], [col], md=True, extra=[20])][::2] == ["30", "25", "20", "15"]
+    assert rows[("20", "ASAP-Phi (sac)")] == "50.0 ± 0.0 [" + rows[("20", "ASAP-Phi (sac)")].split("[")[1]
+    assert rows[("20", "oracle ceiling")].startswith("80.0 [")  # 4, 10, 15, 18, 20, 12, 19, 13
+    assert ("20", "ASAP-Phi (sac)") not in {(r[0], r[1]) for r in table_rows([m], [col], md=True)}
+    data = ReportData("t", [col], table1=[m], table2=[m], runs=[], table2_tolerances=[20])
+    md = markdown(data)
+    t1, t2 = md.split("## Table 2")[0], md.split("## Table 2")[1].split("## ASAP gap")[0]
+    assert "| 20 |" not in t1 and "| 20 | ASAP-Phi (sac) | 50.0" in t2
+    assert "Within 20 steps" in t2 and "not a tolerance of every spec" in t2
+    # a tolerance every spec names needs no sentence
+    assert "Within 30 steps" not in markdown(ReportData("t", [col], [m], [m], [], table2_tolerances=[30]))
+
+
+def test_a_tolerance_beyond_one_columns_deadline_is_left_blank_there():
+    from asap_dsl.backends.compare.report import Column, Method, table_rows
+
+    short = Column("/x/short.asap", "reach", [10, 5], 10, label="short")
+    long = _column("long", "oracle (local)", STEPS)
+    m = Method("asap/sac", "ASAP-Phi (sac)", "rl", {short.name: [_ev([1, 4, 9, None], (10, 5))], long.name: [_ev(STEPS)]})
+    rows = {(r[0], r[1]): r[2:] for r in table_rows([m], [short, long], md=True, extra=[20])}
+    assert rows[("20", "ASAP-Phi (sac)")][0] == "—" and rows[("20", "ASAP-Phi (sac)")][1].startswith("50.0")
+
+
+def test_the_ceiling_row_is_named_after_its_bound():
+    from asap_dsl.backends.compare.report import Method, ReportData, ceiling_label, html_page, markdown, table_rows
+
+    oracle, planner = _column("dc", "oracle (exact)", STEPS), _column("swimmer", "planner (achievable)", STEPS)
+    assert ceiling_label([oracle]) == "oracle ceiling"
+    assert ceiling_label([planner]) == "planner (achievable)"
+    assert ceiling_label([oracle, planner]) == "ceiling"
+    m = Method("asap/sac", "ASAP-Phi (sac)", "rl", {planner.name: [_ev(STEPS)], oracle.name: [_ev(STEPS)]})
+    alone = [r for r in table_rows([m], [planner], md=True) if r[1] != m.label]
+    assert {r[1] for r in alone} == {"planner (achievable)"} and not any("achievable" in r[2] for r in alone)
+    mixed = [r for r in table_rows([m], [oracle, planner], md=True) if r[1] == "ceiling"]
+    assert all("achievable" not in r[2] and r[3].endswith(" planner (achievable)") for r in mixed)
+    data = ReportData("t", [planner], table1=[m], table2=[m], runs=[])
+    assert "a lower bound on the true ceiling" in markdown(data)
+    page = html_page(data)
+    assert page.count('<tr class="ceiling"><td>') == 2 * 3  # Table 1 and Table 2, a row per tolerance
+    assert "planner (achievable)</td>" in page
+
+
+def test_table2_tolerances_beyond_the_deadline_are_refused_before_anything_trains(tiny, capsys, tmp_path):
+    def run(*argv):
+        try:
+            code = cli.main([str(a) for a in argv])
+        except SystemExit as e:
+            code = e.code
+        return code, capsys.readouterr().err
+
+    out = tmp_path / "out"
+    code, err = run("compare", tiny, "--table2-tolerances", "25", "--out", out)
+    assert code == 2 and "tolerance 25 is beyond the deadline of rail go (20 steps" in err, err
+    code, err = run("compare", tiny, "--table2-tolerances", "0", "--out", out)
+    assert code == 2 and "at least 1 step" in err
+    assert "Traceback" not in err and not out.exists()
+    from asap_dsl.backends.compare.paired import compare
+
+    with pytest.raises(ValueError, match="beyond the deadline"):
+        compare([str(tiny)], out=str(out), table2_tolerances=[21])
+    assert not out.exists()
+
+
+def test_the_robustness_curves_end_at_the_reach_point(tiny):
+    from asap_dsl.backends.compare.controllers import GreedyController
+    from asap_dsl.backends.compare.paired import robustness_until_reach
+    from asap_dsl.rollout import Evaluator
+
+    class Away:  # full speed into the pit: never reaches, ends at the avoid hit
+        def reset(self, states):
+            pass
+
+        def act(self, obs, states, t):
+            return -np.ones((len(states), 1))
+
+    prog = asap_dsl.load(tiny)
+    asap = prog.task("go").asap
+    states = np.array([[-1.0], [0.0], [1.5], [1.0]])
+    res = Evaluator(prog, "go", states).run(GreedyController(prog, "go"), record=True)
+    curves = robustness_until_reach(asap, res)
+    assert [len(c) for c in curves] == [10, 5, 3, 1]  # t_reach 9, 4, 2, 0: the reach step is the last
+    assert all(c[-1] >= 0 for c in curves) and all(x < 0 for c in curves for x in c[:-1])
+    away = Evaluator(prog, "go", states[:2]).run(Away(), record=True)  # both left of the goal
+    assert not np.isfinite(away.t_reach).any()
+    assert [len(c) for c in robustness_until_reach(asap, away)] == [int(e) + 1 for e in away.end_step]
+
+
+def test_training_curves_of_many_runs_colour_each_method_once():
+    from asap_dsl.backends.compare import plots
+    from asap_dsl.backends.compare.report import Column
+
+    col = Column("/x/a.asap", "reach", [30, 15], 30, label="a")
+    rows = [{"steps": s, "seconds": s / 100, "success_30": s / 3000, "success_15": s / 6000, "return": s / 10}
+            for s in (100, 1000, 3000)]
+    runs = [(f"method {k}", rows) for k in range(12) for _ in range(2)]  # 12 methods, 2 seeds each
+    png = plots.training_curves([col], {col.name: runs})
+    assert png[:4] == b"\x89PNG"
