@@ -136,3 +136,20 @@ def test_training_curves_of_many_runs_colour_each_method_once():
     runs = [(f"method {k}", rows) for k in range(12) for _ in range(2)]  # 12 methods, 2 seeds each
     png = plots.training_curves([col], {col.name: runs})
     assert png[:4] == b"\x89PNG"
+
+
+def test_planning_a_ceiling_on_two_workers_prints_no_traceback(tiny, tmp_path):
+    """A black box's ceiling is `asapc oracle`'s planner, run before compare: the pool's terminate
+    at the end of each map must end its workers quietly (they inherited asapc's SIGTERM handler,
+    and each printed a KeyboardInterrupt traceback)."""
+    import os
+    import subprocess
+    import sys
+
+    env = dict(os.environ, ASAP_CACHE_DIR=str(tmp_path / "cache"))
+    r = subprocess.run([sys.executable, "-m", "asap_dsl.cli", "oracle", str(tiny), "--planner", "--episodes", "6",
+                        "--workers", "2", "--samples", "16", "--iterations", "4"],
+                       capture_output=True, text=True, timeout=300, env=env)
+    assert r.returncode == 0, r.stderr
+    assert "planner (achievable)" in r.stdout
+    assert "Traceback" not in r.stderr and "KeyboardInterrupt" not in r.stderr, r.stderr

@@ -112,10 +112,17 @@ def _plan_chunk(payload) -> list[dict]:
 
 
 def _threads_for_workers() -> None:
-    """One MuJoCo thread per worker process (the workers are the parallelism), unless set."""
+    """One MuJoCo thread per worker process (the workers are the parallelism), unless set; and the
+    worker's signals as the oracle's pool sets them: the pool's terminate (SIGTERM, at the end of
+    every map) ends it quietly, not through the inherited ``asapc`` handler's KeyboardInterrupt (a
+    traceback per worker on stderr), and Ctrl-C is the parent's to handle."""
+    import signal
+
     from asap_dsl.sim.mujoco_swimmer import THREADS_ENV
 
     os.environ.setdefault(THREADS_ENV, "1")
+    signal.signal(signal.SIGTERM, signal.SIG_DFL)
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
 
 
 def _map(payloads: list, workers: int, progress: Optional[Callable[[int], None]]) -> list[PlannedState]:
