@@ -153,3 +153,24 @@ def test_planning_a_ceiling_on_two_workers_prints_no_traceback(tiny, tmp_path):
     assert r.returncode == 0, r.stderr
     assert "planner (achievable)" in r.stdout
     assert "Traceback" not in r.stderr and "KeyboardInterrupt" not in r.stderr, r.stderr
+
+
+def test_the_oracle_phase_says_when_it_computes_and_is_silent_when_cached(tiny, tmp_path, monkeypatch):
+    import io
+
+    from asap_dsl.backends.compare.paired import _oracle
+    from asap_dsl.cli.compare import SweepProgress
+
+    monkeypatch.setenv("ASAP_CACHE_DIR", str(tmp_path / "cache"))
+    prog = asap_dsl.load(tiny)
+    heard = []
+    first = _oracle(prog, "go", 6, 1, "rail R", lambda *a: heard.append(a))
+    assert first is not None and heard[0] == ("rail R", 0, 6) and heard[-1] == ("rail R", 6, 6)
+    heard.clear()
+    assert _oracle(prog, "go", 6, 1, "rail R", lambda *a: heard.append(a)) is not None and heard == []  # cached
+    stream = io.StringIO()
+    shown = SweepProgress(1, stream)
+    for k in (0, 3, 6):
+        shown.oracle("rail R", k, 6)
+    lines = stream.getvalue().splitlines()
+    assert len(lines) == 2 and "computing the minima of 6 states" in lines[0] and "6 states in" in lines[1]

@@ -67,6 +67,7 @@ class SweepProgress:
         self.parallel = 1
         self.times: list[float] = []
         self.started: dict = {}
+        self.oracle_t0, self.oracle_tenth = time.perf_counter(), 0
         self.t0 = time.perf_counter()
         self.live = stream.isatty()
         self.bar = None
@@ -105,6 +106,26 @@ class SweepProgress:
             status = (result or {}).get("status", "?")
             how = "reused" if status == "finished" and not (result or {}).get("trained_now") else status
             print(f"  [{self.done}/{self.total}] {job.label()}: {how} ({self._info()})", file=self.stream, flush=True)
+
+    def oracle(self, column: str, solved: int, states: int) -> None:
+        """The oracle computing a column's minima (not cached): a line when it starts, each tenth
+        of the states on a terminal, and when it is done (minutes for a thousand states)."""
+        now = time.perf_counter()
+        tenth = 10 * solved // max(1, states)
+        if solved == 0:
+            self.oracle_t0, self.oracle_tenth = now, 0
+            text = f"the oracle: {column}: computing the minima of {states:,} states (cached for the next reports)"
+        elif solved >= states:
+            text = f"the oracle: {column}: {states:,} states in {now - self.oracle_t0:.0f} s"
+        elif self.live and tenth > self.oracle_tenth:
+            self.oracle_tenth = tenth
+            text = f"the oracle: {column}: {solved:,} of {states:,} states"
+        else:
+            return
+        if self.bar is not None:
+            self.bar.console.print(text)
+        else:
+            print(f"  {text}", file=self.stream, flush=True)
 
     def close(self) -> None:
         if self.bar is not None:
@@ -146,7 +167,8 @@ def compare_command(args: argparse.Namespace, out: Optional[TextIO] = None, err:
             res = compare(args.files, tasks=args.tasks, rewards=args.rewards, algos=args.algos, seeds=args.seeds,
                           steps=args.steps, preset=args.preset, workers=n_workers, ray=args.ray, out=args.out,
                           episodes=args.episodes, on_event=progress, oracle_workers=available_cores(),
-                          ray_timeout=args.ray_timeout, engine=args.engine, table2_tolerances=args.table2_tolerances)
+                          ray_timeout=args.ray_timeout, engine=args.engine, table2_tolerances=args.table2_tolerances,
+                          on_oracle=progress.oracle if progress else None)
         finally:  # the bar stops before anything else is printed
             if progress:
                 progress.close()

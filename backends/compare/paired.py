@@ -119,12 +119,15 @@ def compare(specs: Sequence[str], *, tasks: Optional[Sequence[str]] = None,
             out: str = "reports/compare", episodes: int = 1000,
             on_event: Optional[Callable[[str, Job, Optional[dict]], None]] = None,
             oracle_workers: Optional[int] = None, ray_timeout: float = 30.0,
-            engine: Optional[str] = None, table2_tolerances: Sequence[int] = ()) -> CompareResult:
+            engine: Optional[str] = None, table2_tolerances: Sequence[int] = (),
+            on_oracle: Optional[Callable[[str, int, int], None]] = None) -> CompareResult:
     """Train what is missing, evaluate everything on the same states, write the report.
     ``engine`` (sbx or sb3) trains every run; None: the preset's engine where it has the algorithm.
     ``table2_tolerances``: Table 2 within these steps too, beside every tolerance of the spec (the
     paper's Table 2 tolerance: 30 DC motor, 20 bicycle and attitude, 50 swimmer); each at most
-    every task's deadline (:func:`check_tolerances`, ``ValueError``).
+    every task's deadline (:func:`check_tolerances`, ``ValueError``). ``on_oracle(column, solved,
+    states)`` is told when the oracle starts computing a column's minima (solved 0: they were not
+    cached; minutes for a thousand states) and when it has them all.
 
     Holds ``out``'s exclusive lock throughout (a second compare on it is refused, naming the
     first). Runs that cannot be used (failed, damaged) are left out of the tables, named in the
@@ -149,12 +152,28 @@ def compare(specs: Sequence[str], *, tasks: Optional[Sequence[str]] = None,
         try:
             return _compare(specs, tasks, rewards, algos, seeds, steps, preset, workers, ray, out_dir, episodes,
                             on_event, oracle_workers, ray_timeout, start, phase, results, engine,
-                            sorted({int(T) for T in table2_tolerances}, reverse=True))
+                            sorted({int(T) for T in table2_tolerances}, reverse=True), on_oracle)
         except KeyboardInterrupt:
             raise SweepInterrupted(results, phase[0]) from None
         except SweepInterrupted as err:
             err.phase = phase[0]
             raise
+
+
+def _oracle(prog, task: str, episodes: int, workers: Optional[int], name: str, on_oracle):
+    """The oracle's minima on the sweep's states (cached, or computed now and cached); a black box's
+    planner only where ``asapc oracle`` cached it. ``on_oracle`` hears of a computation."""
+    from ..oracle.cache import oracle_for
+
+    tell = on_oracle or (lambda *args: None)
+    solved = [0]
+
+    def progress(k: int) -> None:
+        solved[0] += k
+        tell(name, solved[0], episodes)
+
+    return oracle_for(prog, task, EVAL_SEED, episodes, workers=workers, progress=progress,
+                      started=lambda: tell(name, 0, episodes))
 
 
 def check_tolerances(jobs: Sequence[Job], tolerances: Sequence[int]) -> None:
@@ -190,10 +209,8 @@ def column_labels(specs: Sequence[str]) -> dict[str, str]:
 
 def _compare(specs, tasks, rewards, algos, seeds, steps, preset, workers, ray, out_dir: Path, episodes, on_event,
              oracle_workers, ray_timeout, start, phase: list, results: list, engine=None,
-             table2_tolerances: Sequence[int] = ()) -> CompareResult:
+             table2_tolerances: Sequence[int] = (), on_oracle=None) -> CompareResult:
     import asap_dsl
-
-    from ..oracle.cache import oracle_for
 
     jobs = plan(specs, tasks, list(rewards), list(algos), seeds, preset, steps, engine)
     labels = column_labels(sorted({j.spec for j in jobs}))
@@ -234,10 +251,10 @@ def _compare(specs, tasks, rewards, algos, seeds, steps, preset, workers, ray, o
         seen.add(key)
         prog = asap_dsl.load(job.spec)
         tm = prog.task(job.task).model
-        phase[0] = "the oracle"
-        oracle = oracle_for(prog, job.task, EVAL_SEED, episodes, workers=oracle_workers)
-        phase[0] = "the evaluations"
         col = Column(job.spec, job.task, list(tm.tolerances), tm.deadline, label=labels.get(job.spec))
+        phase[0] = "the oracle"
+        oracle = _oracle(prog, job.task, episodes, oracle_workers, col.name, on_oracle)
+        phase[0] = "the evaluations"
         if oracle is not None:
             col.ceiling = {T: oracle.ceiling(T) for T in sorted({*tm.tolerances, *table2_tolerances}) if T <= tm.deadline}
             col.bound = oracle.bound
