@@ -102,6 +102,10 @@ def test_compare_resumes_after_sigterm(tiny, tmp_path):
     assert after[interrupted]["created"] == before[interrupted]["created"]  # resumed, not started over
     assert after[interrupted]["steps_done"] >= 3000 > before[interrupted]["steps_done"]
     assert (out / "report.html").is_file() and "ρ reward" in (out / "report.md").read_text()
+    status = {r["run_dir"].rsplit("/", 1)[1]: r for r in json.loads((out / "sweep.json").read_text())["jobs"]}
+    assert not status[finished]["trained_now"] and status[interrupted]["resumed"]
+    runs = (out / "report.md").read_text().split("## What was run")[1]
+    assert runs.count("| reused |") == 1 and runs.count("| resumed |") == 1 and runs.count("| trained now |") == 1
 
 
 def _chromium() -> str | None:

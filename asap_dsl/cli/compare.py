@@ -103,8 +103,10 @@ class SweepProgress:
         if self.bar is not None:
             self.bar.update(self.task, completed=self.done, info=self._info())
         elif kind == "done":
-            status = (result or {}).get("status", "?")
-            how = "reused" if status == "finished" and not (result or {}).get("trained_now") else status
+            r = result or {}
+            status = r.get("status", "?")
+            how = status if status != "finished" else (
+                "reused" if not r.get("trained_now") else "resumed" if r.get("resumed") else "trained")
             print(f"  [{self.done}/{self.total}] {job.label()}: {how} ({self._info()})", file=self.stream, flush=True)
 
     def oracle(self, column: str, solved: int, states: int) -> None:

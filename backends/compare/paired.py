@@ -160,6 +160,14 @@ def compare(specs: Sequence[str], *, tasks: Optional[Sequence[str]] = None,
             raise
 
 
+def _status(result: dict) -> str:
+    """What this sweep did with a run: ``trained now``, ``resumed`` (from an interrupted sweep's
+    checkpoint) or ``reused`` (finished before)."""
+    if not result["trained_now"]:
+        return "reused"
+    return "resumed" if result.get("resumed") else "trained now"
+
+
 def _oracle(prog, task: str, episodes: int, workers: Optional[int], name: str, on_oracle):
     """The oracle's minima on the sweep's states (cached, or computed now and cached); a black box's
     planner only where ``asapc oracle`` cached it. ``on_oracle`` hears of a computation."""
@@ -295,7 +303,7 @@ def _compare(specs, tasks, rewards, algos, seeds, steps, preset, workers, ray, o
     t2 = list(table2.values()) if len(algos) > 1 else []
     runs = [{"label": f"{labels[r['job']['spec']]} {r['job']['task']} {r['job']['algo']} {r['job']['reward']}",
              "spec_hash": r["manifest"]["spec_hash"], "seed": r["job"]["seed"], "preset": r["job"]["preset"],
-             "steps": r["steps"], "seconds": r["seconds"], "status": "trained now" if r["trained_now"] else "reused"}
+             "steps": r["steps"], "seconds": r["seconds"], "status": _status(r)}
             for r in loaded]
     phase[0] = "the report"
     data = ReportData(title="ASAP-Phi comparison: " + ", ".join(sorted(set(labels.values()))),

@@ -100,6 +100,7 @@ class JobResult:
     trained_now: bool = False
     error: Optional[str] = None
     note: Optional[str] = None  # what happened on the way (a damaged run trained again)
+    resumed: bool = False       # trained now from the checkpoint an interrupted sweep left
 
     def to_dict(self) -> dict:
         d = asdict(self)
@@ -146,7 +147,7 @@ def run_job(job: Job, runs_dir: str, threads: int = 1) -> dict:
         path = str(job_dir(Path(runs_dir), job, prog, cfg))
         run = RunDir(path)
         state = _state(run)
-        trained, note = False, None
+        trained, note, resumed = False, None, state == "resumable"
         if state != "finished":
             kw = dict(algo=job.algo, reward=job.reward, steps=job.steps, seed=job.seed, preset=job.preset,
                       engine=job.engine, out=path)
@@ -158,16 +159,17 @@ def run_job(job: Job, runs_dir: str, threads: int = 1) -> dict:
                 if state != "resumable":
                     raise
                 # A run that cannot go on (a damaged checkpoint or model): trained again, and said so.
-                note = f"trained again: {err}"
+                note, resumed = f"trained again: {err}", False
                 res = train(prog, job.task, force=True, **kw)
             trained = True
             if res.interrupted:
-                return JobResult(job, path, "interrupted", res.seconds, res.steps, True, note=note).to_dict()
+                return JobResult(job, path, "interrupted", res.seconds, res.steps, True, note=note,
+                                 resumed=resumed).to_dict()
         with run.acquire(exclusive=False):
             manifest = run.read_manifest()
             run.read_eval(manifest)
         return JobResult(job, path, "finished", float(manifest["seconds"]), int(manifest["steps_done"]), trained,
-                         note=note).to_dict()
+                         note=note, resumed=trained and resumed).to_dict()
     except KeyboardInterrupt:  # stopped before its training began (nothing of it was created)
         return JobResult(job, path, "interrupted").to_dict()
     except (RunError, asap_dsl.SpecError, ValueError, KeyError) as err:
