@@ -74,8 +74,14 @@ def test_the_ceiling_row_is_named_after_its_bound():
     assert {r[1] for r in alone} == {"planner (achievable)"} and not any("achievable" in r[2] for r in alone)
     mixed = [r for r in table_rows([m], [oracle, planner], md=True) if r[1] == "ceiling"]
     assert all("achievable" not in r[2] and r[3].endswith(" planner (achievable)") for r in mixed)
-    data = ReportData("t", [planner], table1=[m], table2=[m], runs=[])
-    assert "a lower bound on the true ceiling" in markdown(data)
+    data = ReportData("t", [planner], table1=[m], table2=[m], runs=[], plots={"state_space": b"", "steps_vs_oracle": b""})
+    md = markdown(data)
+    assert "a lower bound on the true ceiling" in md
+    # a black box's sequences are the planner's, everywhere the report names them
+    assert "/ (planner's achievable steps); 1.000 is the planner's pace" in md and "oracle's minimum" not in md
+    assert "beside the planner (dashed)" in md and "against the planner's" in md
+    known = markdown(ReportData("t", [oracle], [m], [m], [], plots={"state_space": b""}))
+    assert "/ (oracle's minimum); 1.000 is the physical limit" in known and "beside the oracle (dashed)" in known
     page = html_page(data)
     assert page.count('<tr class="ceiling"><td>') == 2 * 3  # Table 1 and Table 2, a row per tolerance
     assert "planner (achievable)</td>" in page

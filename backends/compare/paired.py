@@ -20,7 +20,7 @@ from asap_dsl.runs import RunError, atomic_write_json, json_safe, package_versio
 from asap_dsl.sampling import EVAL_SEED, task_states
 
 from . import phase_plots, plots
-from .report import REWARD_NAMES, Column, Method, ReportData, unique, write
+from .report import REWARD_NAMES, Column, Method, ReportData, references, unique, write
 from .sweep import Job, SweepInterrupted, execute, load_result, plan
 
 __all__ = ["CompareResult", "check_tolerances", "compare", "robustness_until_reach"]
@@ -299,6 +299,7 @@ def _compare(specs, tasks, rewards, algos, seeds, steps, preset, workers, ray, o
             examples[col.name] = _examples(prog, job.task, sorted(first, key=lambda r: r["job"]["seed"])[0], oracle,
                                            states, col.name)
 
+    replay.label = f"{references(columns)}, replayed"
     t1 = list(table1.values()) + [greedy]
     t2 = list(table2.values()) if len(algos) > 1 else []
     runs = [{"label": f"{labels[r['job']['spec']]} {r['job']['task']} {r['job']['algo']} {r['job']['reward']}",

@@ -24,6 +24,8 @@ from asap_dsl.model import RegionModel, SystemModel, TaskModel
 from asap_dsl.sampling import init_box
 from asap_dsl.stl import ir
 
+from .report import reference
+
 __all__ = ["Example", "Projection", "Scene", "Shape", "choose_projection", "example", "plot_run", "scene",
            "state_space"]
 
@@ -248,6 +250,7 @@ class Example:
     oracle: Optional[list[Optional[np.ndarray]]] = None  # None: no oracle; an entry None: no sequence
     oracle_reach: list[Optional[int]] = field(default_factory=list)
     missing: str = ""                       # why there is no oracle
+    reference: str = "oracle"               # whose sequences: oracle, or planner (a black box's)
 
 
 def _paths(res, keep: Optional[Sequence[bool]] = None) -> tuple[list, list]:
@@ -288,6 +291,7 @@ def example(prog, task: str, states: np.ndarray, controller, oracle, *, title: s
         ores = ev.run(ctrl, record=True)
         # A state without a sequence would replay zeros: no path is drawn for it.
         ex.oracle, ex.oracle_reach = _paths(ores, [p is not None for p in ctrl.plan])
+        ex.reference = reference(oracle.bound)
     return ex, res, ores
 
 
@@ -404,10 +408,11 @@ def state_space(examples: Sequence[Example]) -> Optional[bytes]:
                 ax.axis("off")
                 continue
             _panel(ax, ex, p)
-            who = (f"{ex.label} (solid), oracle (dashed)" if ex.oracle is not None
+            who = (f"{ex.label} (solid), {ex.reference} (dashed)" if ex.oracle is not None
                    else f"{ex.label} only: {ex.missing or 'no oracle'}")
             ax.set_title(f"{ex.title}: {who}", fontsize=10)
-    handles = [Line2D([], [], color="k", lw=1.6, label="policy"), Line2D([], [], color="k", ls="--", lw=1.3, label="oracle"),
+    dashed = " or ".join(sorted({e.reference for e in examples if e.oracle is not None})) or "oracle"
+    handles = [Line2D([], [], color="k", lw=1.6, label="policy"), Line2D([], [], color="k", ls="--", lw=1.3, label=dashed),
                Line2D([], [], ls="", marker="*", ms=11, color="0.5", mec="k", label="reach point"),
                Line2D([], [], ls="", marker="o", ms=5, color="0.3", label="start 1, 2, ... (one colour each)"),
                Line2D([], [], ls="", marker="X", ms=7, color="0.5", mec="k", label="not reached"),

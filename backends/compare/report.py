@@ -148,7 +148,7 @@ PLANNER = "planner (achievable)"
 
 
 def _planned(col: Column) -> bool:
-    return (col.bound or "").startswith("planner")
+    return reference(col.bound) == "planner"
 
 
 def table_rows(methods: list[Method], columns: list[Column], md: bool, extra: Sequence[int] = ()) -> list[list[str]]:
@@ -210,13 +210,44 @@ def _bounds(columns: list[Column]) -> str:
     return "; ".join(parts)
 
 
-PLOT_TITLES = {
-    "state_space": "Example trajectories in the state space: the policy (solid) beside the oracle (dashed)",
-    "success_vs_tolerance": "Success rate against tolerance, beside the oracle's ceiling",
-    "steps_vs_oracle": "Each state's steps to reach against the oracle's minimum",
-    "trajectories": "Example trajectories beside the oracle's (robustness of asap over time)",
-    "training_curves": "Training curves: validation success against wall time and steps",
-}
+def reference(bound: Optional[str]) -> str:
+    """Whose sequences a ceiling's are: ``planner`` for ``planner (achievable)``, else ``oracle``."""
+    return "planner" if (bound or "").startswith("planner") else "oracle"
+
+
+def references(columns: list[Column]) -> str:
+    """``oracle``, ``planner`` or ``oracle or planner``: whose sequences the columns' ceilings are."""
+    kinds = sorted({reference(c.bound) for c in columns if c.bound})
+    return " or ".join(kinds) if kinds else "oracle"
+
+
+def plot_titles(columns: list[Column]) -> dict[str, str]:
+    who = references(columns)
+    return {
+        "state_space": f"Example trajectories in the state space: the policy (solid) beside the {who} (dashed)",
+        "success_vs_tolerance": "Success rate against tolerance, beside the ceiling",
+        "steps_vs_oracle": f"Each state's steps to reach against the {who}'s",
+        "trajectories": f"Example trajectories beside the {who}'s (robustness of asap over time)",
+        "training_curves": "Training curves: validation success against wall time and steps",
+    }
+
+
+def gap_caption(columns: list[Column]) -> str:
+    """What the ASAP gap divides by: the oracle's minimum, or the planner's achievable steps (upper
+    bounds on the minimum: under 1.000 a method beat the planner, not the physical limit)."""
+    who = references(columns)
+    if who == "oracle":
+        of, limit = "oracle's minimum", "1.000 is the physical limit"
+    elif who == "planner":
+        of, limit = ("planner's achievable steps", "1.000 is the planner's pace, an upper bound on the minimum "
+                     "(under 1.000: faster than the planner)")
+    else:
+        of, limit = ("oracle's minimum; for a black box the planner's achievable steps",
+                     "1.000 is the physical limit (the planner's pace for a black box, an upper bound on it)")
+    return (f"Median over the states both reach of (method's steps) / ({of}); {limit} "
+            "(mean ± standard deviation over seeds).")
+
+
 
 
 def markdown(data: ReportData, plot_dir: str = "plots") -> str:
@@ -230,11 +261,9 @@ def markdown(data: ReportData, plot_dir: str = "plots") -> str:
         note = table2_caption(data)
         lines += ["## Table 2 — algorithms", ""] + ([note, ""] if note else []) + \
                  [_md_table(header, table_rows(data.table2, cols, md=True, extra=data.table2_tolerances)), ""]
-    lines += ["## ASAP gap", "",
-              "Median over the states both reach of (method's steps) / (oracle's minimum); 1.000 is the physical limit "
-              "(mean ± standard deviation over seeds).", "",
+    lines += ["## ASAP gap", "", gap_caption(cols), "",
               _md_table(["method"] + [c.name for c in cols], gap_rows(unique(data.table1 + data.table2), cols)), ""]
-    for name, title in PLOT_TITLES.items():
+    for name, title in plot_titles(cols).items():
         if name in data.plots:
             lines += [f"## {title}", "", f"![{title}]({plot_dir}/{name}.png)", ""]
     lines += ["## What was run", "", _md_table(["run", "spec sha256", "seed", "preset", "steps", "train s", "status"],
@@ -303,11 +332,10 @@ def html_page(data: ReportData) -> str:
         body += [_html_table(header, _escape_rows(table_rows(data.table2, cols, md=False, extra=data.table2_tolerances), 2),
                              "table2", ceiling_label(cols))]
     body += ["<h2>ASAP gap</h2>",
-             '<p class="caption">Median over the states both reach of (method\'s steps) / (oracle\'s minimum); 1.000 is '
-             "the physical limit (mean ± standard deviation over seeds).</p>",
+             f'<p class="caption">{html.escape(gap_caption(cols))}</p>',
              _html_table(["method"] + [c.name for c in cols],
                          _escape_rows(gap_rows(unique(data.table1 + data.table2), cols), 99), "gap")]
-    for name, title in PLOT_TITLES.items():
+    for name, title in plot_titles(cols).items():
         if name in data.plots:
             b64 = base64.b64encode(data.plots[name]).decode("ascii")
             body += [f"<h2>{html.escape(title)}</h2>",
