@@ -69,6 +69,12 @@ def test_the_ceiling_row_is_named_after_its_bound():
     assert ceiling_label([oracle]) == "oracle ceiling"
     assert ceiling_label([planner]) == "planner (achievable)"
     assert ceiling_label([oracle, planner]) == "ceiling"
+    from asap_dsl.backends.compare.report import Column
+
+    uncached = Column("/x/swimmer.asap", "reach", [50, 40, 30], 50, label="swimmer", black_box=True)
+    assert ceiling_label([uncached]) == "planner (achievable)"  # named all the same, its cells blank
+    assert {r[2] for r in table_rows([], [uncached], md=True)} == {"—"}
+    assert "none, the planner's achievable steps are not cached" in markdown(ReportData("t", [uncached], [], [], []))
     m = Method("asap/sac", "ASAP-Phi (sac)", "rl", {planner.name: [_ev(STEPS)], oracle.name: [_ev(STEPS)]})
     alone = [r for r in table_rows([m], [planner], md=True) if r[1] != m.label]
     assert {r[1] for r in alone} == {"planner (achievable)"} and not any("achievable" in r[2] for r in alone)

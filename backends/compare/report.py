@@ -42,6 +42,7 @@ class Column:
     bound: Optional[str] = None        # "oracle (exact)" / "oracle (local)"
     oracle_steps: Optional[list] = None
     label: Optional[str] = None        # the spec's name in the report (default: its file name without .asap)
+    black_box: bool = False            # a simulator: its ceiling is the planner's, when asapc oracle cached it
 
     @property
     def name(self) -> str:
@@ -138,7 +139,7 @@ def ceiling_label(columns: list[Column]) -> str:
     """The ceiling row's name: ``oracle ceiling`` for known dynamics, ``planner (achievable)`` where
     every ceiling is the planner's (a black box: a lower bound on the true ceiling), ``ceiling``
     for a mix (each planner cell then says so)."""
-    bounds = {_planned(c) for c in columns if c.ceiling}
+    bounds = {_planned(c) for c in columns if c.ceiling or c.black_box}
     if bounds == {True}:
         return PLANNER
     return "ceiling" if bounds == {True, False} else "oracle ceiling"
@@ -148,7 +149,7 @@ PLANNER = "planner (achievable)"
 
 
 def _planned(col: Column) -> bool:
-    return reference(col.bound) == "planner"
+    return col.black_box or reference(col.bound) == "planner"
 
 
 def table_rows(methods: list[Method], columns: list[Column], md: bool, extra: Sequence[int] = ()) -> list[list[str]]:
@@ -204,9 +205,13 @@ def _md_table(header: list[str], rows: list[list[str]]) -> str:
 
 def _bounds(columns: list[Column]) -> str:
     parts = []
-    missing = "no ceiling (an unsupported task, or a black box without `asapc oracle`'s planner (achievable))"
     for c in columns:
-        parts.append(f"{c.name}: {c.bound or missing}" + (", a lower bound on the true ceiling" if _planned(c) else ""))
+        if c.bound:
+            parts.append(f"{c.name}: {c.bound}" + (", a lower bound on the true ceiling" if _planned(c) else ""))
+        elif c.black_box:
+            parts.append(f"{c.name}: none, the planner's achievable steps are not cached for these states (see the notes)")
+        else:
+            parts.append(f"{c.name}: none, a task the oracle cannot solve")
     return "; ".join(parts)
 
 
@@ -217,7 +222,7 @@ def reference(bound: Optional[str]) -> str:
 
 def references(columns: list[Column]) -> str:
     """``oracle``, ``planner`` or ``oracle or planner``: whose sequences the columns' ceilings are."""
-    kinds = sorted({reference(c.bound) for c in columns if c.bound})
+    kinds = sorted({"planner" if _planned(c) else "oracle" for c in columns if c.bound or c.black_box})
     return " or ".join(kinds) if kinds else "oracle"
 
 
