@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 import asap_dsl
-from asap_dsl import cli
+from conftest import asapc
 
 
 def _ev(t_reach: list, tolerances=(30, 25, 15)) -> dict:
@@ -94,17 +94,10 @@ def test_the_ceiling_row_is_named_after_its_bound():
 
 
 def test_table2_tolerances_beyond_the_deadline_are_refused_before_anything_trains(tiny, capsys, tmp_path):
-    def run(*argv):
-        try:
-            code = cli.main([str(a) for a in argv])
-        except SystemExit as e:
-            code = e.code
-        return code, capsys.readouterr().err
-
     out = tmp_path / "out"
-    code, err = run("compare", tiny, "--table2-tolerances", "25", "--out", out)
+    code, _, err = asapc(capsys, "compare", tiny, "--table2-tolerances", "25", "--out", out)
     assert code == 2 and "tolerance 25 is beyond the deadline of rail go (20 steps" in err, err
-    code, err = run("compare", tiny, "--table2-tolerances", "0", "--out", out)
+    code, _, err = asapc(capsys, "compare", tiny, "--table2-tolerances", "0", "--out", out)
     assert code == 2 and "at least 1 step" in err
     assert "Traceback" not in err and not out.exists()
     from asap_dsl.backends.compare.paired import compare
