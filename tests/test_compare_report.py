@@ -179,3 +179,22 @@ def test_the_oracle_phase_says_when_it_computes_and_is_silent_when_cached(tiny, 
         shown.oracle("rail R", k, 6)
     lines = stream.getvalue().splitlines()
     assert len(lines) == 2 and "computing the minima of 6 states" in lines[0] and "6 states in" in lines[1]
+
+
+def test_the_replayed_ceiling_is_replayed_again_when_the_ceiling_changes(tiny, tmp_path, monkeypatch):
+    """The oracle's (or planner's) replay is cached beside the report; a ceiling computed again
+    (another planner budget, a new oracle) must not be judged by the old replay."""
+    from asap_dsl.backends.compare.paired import _baseline
+    from asap_dsl.backends.oracle.cache import CachedOracle, oracle_for
+    from asap_dsl.sampling import task_states
+
+    monkeypatch.setenv("ASAP_CACHE_DIR", str(tmp_path / "cache"))
+    prog = asap_dsl.load(tiny)
+    states = task_states(prog.system, prog.task("go").model, 6, seed=2024)
+    oracle = oracle_for(prog, "go", 2024, 6, workers=1)
+    first = _baseline(prog, "go", "oracle", states, oracle, tmp_path / "methods")
+    assert _baseline(prog, "go", "oracle", states, oracle, tmp_path / "methods") == first  # read back
+    worse = [dict(s, actions=None, steps=None) if i == 0 else s for i, s in enumerate(oracle.data["states"])]
+    again = _baseline(prog, "go", "oracle", states, CachedOracle({**oracle.data, "states": worse}), tmp_path / "methods")
+    assert len(list((tmp_path / "methods").glob("*.json"))) == 2
+    assert again["per_state"]["t_reach"][0] is None and first["per_state"]["t_reach"][0] is not None

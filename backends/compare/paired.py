@@ -5,6 +5,7 @@ the report that shows it (:mod:`.report`, :mod:`.plots`).
 
 from __future__ import annotations
 
+import hashlib
 import json
 import time
 from dataclasses import dataclass, field
@@ -42,7 +43,10 @@ def _baseline(prog, task: str, kind: str, states: np.ndarray, oracle, cache: Pat
     from .controllers import GreedyController, OracleController
     from ..rl.evaluation import summarise
 
-    path = cache / f"{spec_hash(prog.source)[:16]}-{task}-{kind}-n{len(states)}.json"
+    name = f"{spec_hash(prog.source)[:16]}-{task}-{kind}-n{len(states)}"
+    if kind == "oracle" and oracle is not None:  # a re-planned or re-solved ceiling is replayed again
+        name += "-" + hashlib.sha256(json.dumps(oracle.data.get("states"), default=str).encode()).hexdigest()[:8]
+    path = cache / f"{name}.json"
     if path.is_file():
         try:
             return json.loads(path.read_text(encoding="utf-8"))
