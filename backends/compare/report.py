@@ -182,8 +182,8 @@ def table2_caption(data: "ReportData") -> Optional[str]:
     if not extra:
         return None
     within = ", ".join(str(T) for T in extra)
-    return (f"Within {within} steps (`--table2-tolerances`; not a tolerance of every spec): each state's steps to "
-            "reach counted against it, for the runs and the ceiling alike.")
+    return (f"Within {within} steps (`--table2-tolerances`, beside the spec's own tolerances): counted from each "
+            "state's steps to reach, for the runs and the ceiling alike.")
 
 
 def gap_rows(methods: list[Method], columns: list[Column]) -> list[list[str]]:
