@@ -43,7 +43,7 @@ def _core(venv):
 
 
 def _restart(wrapper, core, mask: np.ndarray, states: np.ndarray, obs: np.ndarray) -> None:
-    """Start the masked entries at ``states`` (their drawn episode lengths kept), their first
+    """Start the masked entries at ``states`` with the episode lengths they have now, their first
     observations written into ``obs`` as the policy sees them (scaled)."""
     raw = np.empty(obs.shape, dtype=np.float32)
     core._start(states, np.asarray(core.k).copy(), mask, raw)
@@ -101,14 +101,15 @@ def patch_learner_env(end_at_reach_gamma: float | None, failed_starts: float | N
     return stats
 
 
-def patch_failure_reward(factor_deadline: bool) -> None:
+def patch_failure_reward() -> None:
+    """A failure step earns the reward's floor times the deadline."""
     from asap_dsl import rewards
 
     orig = rewards.Reward.__init__
 
     def init(self, task, *a, **k):
         orig(self, task, *a, **k)
-        if factor_deadline and self.floor is not None:
+        if self.floor is not None:
             self.floor = self.floor * task.deadline
 
     rewards.Reward.__init__ = init
@@ -169,8 +170,11 @@ def main() -> int:
         told.append(patch_long_demos(prog, args.task, n, least, repeat))
         args.demonstrations = n
     gamma = presets.discount(prog.task(args.task).model.deadline, presets.DEFAULT.horizon)
-    stats = patch_learner_env(gamma if args.end_at_reach else None, args.failed_starts, args.seed)
-    patch_failure_reward(args.failure_times_deadline)
+    stats: dict = {}
+    if args.end_at_reach or args.failed_starts is not None:  # the plain default keeps its own step
+        stats = patch_learner_env(gamma if args.end_at_reach else None, args.failed_starts, args.seed)
+    if args.failure_times_deadline:
+        patch_failure_reward()
     if args.sbx_class:
         patch_sbx_class(args.sbx_class)
     kw = {k: getattr(args, k) for k in ("algo", "demonstrations") if getattr(args, k) is not None}

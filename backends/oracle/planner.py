@@ -28,7 +28,7 @@ reaching adds ``D``. The elite (the cheapest ``elite`` share) sets the next mean
 (smoothed); the best elites are carried over. Once a sequence reaches at step N, candidates are
 rolled out for N - 1 steps only: only an earlier arrival can improve on it. Then the polish
 (:meth:`Planner.polish`, within ``polish`` times the sampling's rollouts): descents where nothing
-reached, and the shortening of what did.
+reached, and the shortening of what did (at most ``shorten_seconds`` per state).
 
 Budget: ``samples`` candidates per iteration, ``iterations`` iterations, and the per-state time
 limit (as the oracle's ``--state-time-limit``). The random numbers of a state are seeded by the
@@ -542,10 +542,10 @@ class Planner:
         with a few switches, periodic, uniform noise), until one reaches; then
         :meth:`shorten` what reached, for at most ``shorten_seconds`` of the clock (on a costly
         simulator, the swimmer's, shortening a found sequence takes many descents for a step or
-        two; finding one where nothing reached keeps the whole budget). Sampling stalls on long manoeuvres (the bicycle turning
-        round below its goal) where a descent from near them arrives; once a sequence reaches,
-        squeezing it in time and descending at the shorter horizon finds the earlier arrivals
-        that mutating single knots misses. Returns the actions (None: none reached) and the
+        two; finding one where nothing reached keeps the whole budget). Sampling stalls on long
+        manoeuvres (the bicycle turning round below its goal) where a descent from near them
+        arrives; once a sequence reaches, squeezing it in time and descending at the shorter
+        horizon finds the earlier arrivals that mutating single knots misses. Returns the actions (None: none reached) and the
         rollouts spent."""
         used, n = 0, self.budget.descents
         if actions is None:
