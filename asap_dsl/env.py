@@ -195,6 +195,21 @@ class EnvCore:
         self._keep_info(self.asap.rob, self.asap.sat)
         return self.obs()
 
+    def restart(self, mask: np.ndarray, states: np.ndarray) -> np.ndarray:
+        """Start the masked entries afresh at ``states [B, n]`` (their rows under ``mask``), each
+        with the episode length it has; returns their observations ``[mask.sum(), ...]``. What an
+        autoreset does, at states the caller chose (a training curriculum's starts)."""
+        mask = np.asarray(mask, dtype=bool)
+        cand = self.states.copy()
+        cand[mask] = np.asarray(states, dtype=np.float64).reshape(self.B, self.n)[mask]
+        self.states = self._set_states(cand, mask=mask)
+        with np.errstate(over="ignore", invalid="ignore", divide="ignore"):  # as in step
+            for tr in self.trackers:
+                tr.restart(mask, cand)
+        self.t[mask] = 0
+        self.t_reach[mask] = np.where(self.asap.sat[mask], 0, -1)
+        return self.obs()[mask]
+
     def step(self, actions):
         """Advance every entry; returns (obs, reward, terminated, truncated, final_obs, done)."""
         # Huge states overflow in regions and rewards, and W209 operations give NaN: both are

@@ -51,7 +51,7 @@ def test_the_buffer_holds_exactly_the_replayed_oracle_sequences(rail):
     model, scaling, wrap = _learner(rail)
     assert model.replay_buffer.pos == 0
     demos = add_demonstrations(rail, "go", model, wrap, scaling, solve(rail, "go", 24, 0, workers=1))
-    assert demos.reason is None and demos.added > 10 and demos.added == demos.solved
+    assert demos.reason is None and demos.added > 10 and demos.added == demos.solved == demos.replays
     obs, acts, rew, nxt, done, _ = _buffer_rows(model.replay_buffer)
     T = demos.transitions
     assert len(obs) == -(-T // 2) * 2  # whole rows of n_envs; a last half row repeats the first transition
@@ -94,7 +94,7 @@ def test_demonstration_states_are_not_evaluation_or_validation_states(rail):
 def test_who_gets_demonstrations(rail):
     from asap_dsl.backends.rl.config import ConfigError, resolve_config
 
-    assert resolve_config(rail).demonstrations == 0  # measured: none by default (docs/training.md)
+    assert resolve_config(rail).demonstrations == 300  # the default's longest manoeuvres (test_curriculum.py)
     assert resolve_config(rail, preset="paper").demonstrations == 0
     assert resolve_config(rail, demonstrations=12).demonstrations == 12
     assert resolve_config(rail, algo="td3", demonstrations=12, preset="paper").demonstrations == 12
@@ -206,7 +206,9 @@ def test_a_run_that_finds_nothing_gets_the_oracles_sequences_once(tmp_path, caps
     assert code == 0 and "no validation has succeeded after" in err, err
     late = RunDir(out).read_manifest()["late_demonstrations"]
     assert 300 <= late["at_step"] < 3000 and late["states"] == 8 and late["added"] == 8 and late["oracle_seconds"] > 0
-    slots = -(-late["transitions"] // 2)
+    first = RunDir(out).read_manifest()["demonstrations"]  # the preset's longest: 3 states for 3000 steps
+    assert first["states"] == 3 and first["replays"] % 4 == 0
+    slots = -(-late["transitions"] // 2) + -(-first["transitions"] // 2)
     assert buffer_pos() == slots + 3000 // 2
     code, _, err = asapc(capsys, "train", spec, "--out", out, "--resume", "--steps", 3060, "--no-eval")
     assert code == 0 and "no validation has succeeded after" not in err

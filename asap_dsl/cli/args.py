@@ -16,7 +16,7 @@ from ..limits import LIMITS, available_cores
 __all__ = ["CliError", "EMPTY_TASK", "InputError", "UsageError", "add_episodes", "add_format", "add_seed",
            "add_task", "add_workers", "check_task", "episodes_int", "names_list", "natural_int", "planner_samples",
            "positive_amount",
-           "positive_int", "seed_int", "steps_int", "tolerances_list", "workers"]
+           "positive_int", "share_float", "seed_int", "steps_int", "tolerances_list", "workers"]
 
 
 # ------------------------------------------------------------------------------------ failures
@@ -68,6 +68,17 @@ def natural_int(text: str) -> int:
     value = _whole(text)
     if value < 0:
         raise argparse.ArgumentTypeError(f"expected 0 or more, got {value}")
+    return value
+
+
+def share_float(text: str) -> float:
+    """argparse type: a share between 0 and 1."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number between 0 and 1, got '{text}'") from None
+    if not 0.0 <= value <= 1.0:
+        raise argparse.ArgumentTypeError(f"expected a number between 0 and 1, got {text}")
     return value
 
 

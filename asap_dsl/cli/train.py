@@ -17,6 +17,7 @@ from typing import Optional, TextIO
 from ..formatting import percent
 from ..runfiles import shown
 from .args import (InputError, UsageError, add_seed, add_task, check_task, natural_int, positive_amount, positive_int,
+                   share_float,
                    steps_int)
 
 __all__ = ["ConsoleProgress", "fill_train_subparser", "train_command", "validation_text"]
@@ -44,6 +45,9 @@ def fill_train_subparser(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--demonstrations", type=natural_int, metavar="N",
                    help="initial states whose oracle action sequences go into the replay buffer before learning "
                         "(SAC, TD3, DDPG on known dynamics; default: the preset's; 0: none)")
+    p.add_argument("--failed-starts", type=share_float, metavar="P",
+                   help="the share of new training episodes that start where an earlier one did not reach "
+                        "(default: the preset's, 0.5; 0: none)")
     p.add_argument("--out", help="the run directory (default runs/<spec>-<task>-<algo>-<reward>-s<seed>)")
     p.add_argument("--resume", action="store_true", help="continue the run's checkpoint (same steps, buffer, random state)")
     p.add_argument("--force", action="store_true", help="replace an existing run directory")
@@ -151,7 +155,8 @@ def train_command(args: argparse.Namespace, out: Optional[TextIO] = None, err: O
                        preset=args.preset, out=args.out, resume=args.resume, force=args.force,
                        progress=progress, evaluate=not args.no_eval,
                        time_limit=None if args.time_limit is None else 60.0 * args.time_limit,
-                       demonstrations=args.demonstrations, **_engine_options(args))
+                       demonstrations=args.demonstrations, failed_starts=args.failed_starts,
+                       **_engine_options(args))
     except KeyError as e:  # an unknown task
         raise UsageError(e.args[0]) from None
     except ConfigError as e:

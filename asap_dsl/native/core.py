@@ -198,6 +198,19 @@ class NativeCore:
         self.info_t_reach[:], self.info_end[:], self.info_t[:] = self.t_reach, 0, 0
         return obs
 
+    def restart(self, mask: np.ndarray, states: np.ndarray) -> np.ndarray:
+        """The numpy core's :meth:`~asap_dsl.env.EnvCore.restart`, compiled: the masked entries
+        started at ``states [B, n]`` with the episode lengths they have; their observations."""
+        mask = np.asarray(mask, dtype=bool)
+        s = np.array(self.states)
+        s[mask] = np.asarray(states, dtype=np.float64).reshape(self.B, self.n)[mask]
+        if self._black_box:
+            s = self._set_sim(s, mask)
+        obs = np.empty(self._obs_shape, dtype=np.float32)
+        with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
+            self._start(s, np.array(self.k), mask, obs)
+        return obs[mask]
+
     def _set_sim(self, states: np.ndarray, mask: Optional[np.ndarray]) -> np.ndarray:
         """A black-box simulator set to ``states`` (the masked entries), checked by the numpy core."""
         self.inner.states = self.states.copy()

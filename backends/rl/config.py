@@ -4,6 +4,7 @@ then explicit arguments (strongest). Pure: reads a checked program, writes nothi
 
 from __future__ import annotations
 
+import math
 from dataclasses import asdict, dataclass, field, fields
 from typing import Any, Mapping, Optional
 
@@ -34,9 +35,10 @@ class ConfigError(ValueError):
 
 
 # What each stored field must be (the annotations, as text), and how a message names it.
-_STORED_TYPES = {"str": (str,), "int": (int,), "bool": (bool,), "dict[str, Any]": (dict,),
+_STORED_TYPES = {"str": (str,), "int": (int,), "bool": (bool,), "dict[str, Any]": (dict,), "float": (int, float),
                  "Optional[float]": (int, float, type(None)), "Optional[dict[str, str]]": (dict, type(None))}
 _TYPE_WORDS = {"str": "a text", "int": "a whole number", "bool": "true or false", "dict[str, Any]": "an object",
+               "float": "a number",
                "Optional[float]": "a number or null", "Optional[dict[str, str]]": "an object or null"}
 
 
@@ -64,6 +66,12 @@ class TrainConfig:
     time_limit: Optional[float] = None  # seconds of training; the run ends (finished) when they are spent
     demonstrations: int = 0   # initial states whose oracle sequences fill the replay buffer first (:mod:`.demonstrations`)
     late_demonstrations: int = 0  # ... or later, when no validation has succeeded (:mod:`.exploration`)
+    # Of the demonstrations' sequences the longest this share is kept, each this many times, the
+    # oracle searching for at most these seconds (None: no bound but its time per state).
+    demonstration_share: float = 1.0
+    demonstration_repeat: int = 1
+    demonstration_seconds: Optional[float] = None
+    failed_starts: float = 0.0  # the share of new episodes started where an earlier one failed (:mod:`.curriculum`)
     # Each state entry's scaling box (init, state or none: asap_dsl.observation); None in runs from
     # before it was recorded, which used observation_scaling's box for every entry.
     observation_sources: Optional[dict[str, str]] = None
@@ -75,8 +83,9 @@ class TrainConfig:
     def from_dict(cls, data: Mapping[str, Any]) -> "TrainConfig":
         names = {f.name for f in fields(cls)}
         data = {"engine": REFERENCE, **data}  # a run from before engines: stable-baselines3 trained it
-        missing = names - set(data) - {"time_limit", "demonstrations", "late_demonstrations",
-                                         "observation_sources"}  # runs from before them had none
+        missing = names - set(data) - {"time_limit", "demonstrations", "late_demonstrations", "observation_sources",
+                                         "demonstration_share", "demonstration_repeat", "demonstration_seconds",
+                                         "failed_starts"}  # runs from before them had none
         if missing:
             raise ConfigError(f"the stored configuration lacks {', '.join(sorted(missing))}")
         for f in fields(cls):  # a manifest edited by hand: one sentence, not a crash deep in training
@@ -93,6 +102,7 @@ class TrainConfig:
         d = self.to_dict()
         d.pop("validate_every", None)
         d.pop("time_limit", None)
+        d.pop("demonstration_seconds", None)  # follows from the time limit
         return d
 
 
@@ -100,15 +110,18 @@ def resolve_config(prog, task: Optional[str] = None, *, algo: Optional[str] = No
                    steps: Optional[int] = None, seed: Optional[int] = None, preset: Optional[str] = None,
                    n_envs: Optional[int] = None, settings: Optional[Mapping[str, Any]] = None,
                    eval_episodes: Optional[int] = None, time_limit: Optional[float] = None,
-                   engine: Optional[str] = None, demonstrations: Optional[int] = None) -> TrainConfig:
+                   engine: Optional[str] = None, demonstrations: Optional[int] = None,
+                   failed_starts: Optional[float] = None) -> TrainConfig:
     """Resolve the configuration of training ``task`` of ``prog``.
 
     ``settings`` are hyperparameters by their ``train { ... }`` names (they override the block
     and the preset). ``engine``: ``sbx`` or ``sb3`` (default: the preset's where it has the
     algorithm). ``demonstrations``: initial states whose oracle sequences go into the replay
-    buffer before learning (default: the preset's, none in both, where the algorithm has a replay
-    buffer and the dynamics are known; 0: none). Raises :class:`ConfigError` (one sentence) or
-    ``KeyError`` (unknown task).
+    buffer before learning (default: the preset's where the algorithm has a replay buffer and the
+    dynamics are known; 0: none); of their sequences the preset's longest share is kept.
+    ``failed_starts``: the share of new training episodes that start at the initial state of an
+    earlier one that did not reach (:mod:`.curriculum`; default: the preset's). Raises
+    :class:`ConfigError` (one sentence) or ``KeyError`` (unknown task).
     """
     t = prog.task(task).model  # KeyError with a suggestion on an unknown task
     block = dict(t.train)
@@ -145,14 +158,19 @@ def resolve_config(prog, task: Optional[str] = None, *, algo: Optional[str] = No
         raise ConfigError(f"the seed must be 0 or more; got {run_seed}")
     if time_limit is not None and not (time_limit > 0 and time_limit < float("inf")):
         raise ConfigError(f"the time limit must be a positive number of seconds; got {time_limit}")
-    demos = _demonstrations(prog, algo, demonstrations, p.demonstrations)
+    demos = _demonstrations(prog, algo, demonstrations, p.demonstration_states(total))
+    restarts = p.failed_starts if failed_starts is None else failed_starts
+    if isinstance(restarts, bool) or not isinstance(restarts, (int, float)) or not 0.0 <= restarts <= 1.0:
+        raise ConfigError(f"failed starts must be a share between 0 and 1; got {restarts!r}")
     # The preset's rule for sparse goals, unless the run chose its demonstrations (0 included).
     late = 0 if demonstrations is not None else _demonstrations(prog, algo, None, p.late_demonstrations)
     if algo in OFF_POLICY:
         # Memory for what the run can fill, no more (the paper's buffer never drops a sample);
         # demonstrations are at most one episode per state.
         hyper["buffer_size"] = int(min(int(hyper.get("buffer_size", 1_000_000)),
-                                       total + envs + (demos + late) * (t.episode[1] + 1)))
+                                       total + envs + (math.ceil(demos * max(1.0, p.demonstration_share
+                                                                             * p.demonstration_repeat)) + late)
+                                       * (t.episode[1] + 1)))
     elif algo == "ppo":
         rollout = int(hyper.get("n_steps", 2048)) * envs
         batch = int(hyper.get("batch_size", 64))
@@ -171,7 +189,9 @@ def resolve_config(prog, task: Optional[str] = None, *, algo: Optional[str] = No
         validation_episodes=validation_states(total, p.validation_episodes), validation_seed=VALIDATION_SEED,
         validate_every=every,
         eval_episodes=episodes, hyper=hyper, time_limit=None if time_limit is None else float(time_limit),
-        demonstrations=demos, late_demonstrations=late, observation_sources=sources)
+        demonstrations=demos, late_demonstrations=late, observation_sources=sources,
+        demonstration_share=p.demonstration_share, demonstration_repeat=p.demonstration_repeat,
+        demonstration_seconds=p.demonstration_budget(time_limit), failed_starts=float(restarts))
 
 
 def _hyperparameters(preset: Mapping[str, Any], block: Mapping[str, Any], settings: Optional[Mapping[str, Any]],

@@ -20,7 +20,7 @@ from __future__ import annotations
 import functools
 import sys
 import time
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 from typing import Any, Callable, Optional
 
 import numpy as np
@@ -31,7 +31,7 @@ from .config import VALIDATION_SEED
 from .presets import OFF_POLICY
 
 __all__ = ["DEMONSTRATION_SEED_OFFSET", "DEMONSTRATION_STATE_SECONDS", "Demonstrations", "Witnesses",
-           "add_demonstrations", "demonstration_seed", "replay", "solve", "store", "unavailable"]
+           "add_demonstrations", "demonstration_seed", "longest", "replay", "solve", "store", "unavailable"]
 
 #: Added to the run's seed for the demonstrations' initial states (and their episode lengths).
 #: Larger than both fixed seeds, so that no run's seed can map onto them.
@@ -59,11 +59,13 @@ def unavailable(prog, algo: str) -> Optional[str]:
 @dataclass(frozen=True)
 class Demonstrations:
     """What :func:`add_demonstrations` did: ``states`` drawn, ``solved`` by the oracle within an
-    episode, ``added`` sequences stored (their replay reached the goal), ``transitions`` stored,
+    episode, ``replays`` of them chosen (:func:`longest`: the longest, repeated), ``added`` replays
+    stored (they reached the goal), ``transitions`` stored,
     the oracle's and the whole step's wall time; ``reason`` why none were tried."""
 
     states: int = 0
     solved: int = 0
+    replays: int = 0
     added: int = 0
     transitions: int = 0
     oracle_seconds: float = 0.0
@@ -78,9 +80,10 @@ class Demonstrations:
         """One line for the training log."""
         if self.reason is not None:
             return f"demonstrations: none ({self.reason})"
-        return (f"demonstrations: {self.added} of {self.states} states ({self.solved} solved by the oracle in "
-                f"{self.oracle_seconds:.1f} s, seed {self.seed}), {self.transitions:,} transitions in the replay "
-                f"buffer ({self.seconds:.1f} s in all)")
+        chosen = "" if self.replays == self.solved else f", {self.replays} replays of the longest"
+        return (f"demonstrations: {self.solved} of {self.states} states solved by the oracle in "
+                f"{self.oracle_seconds:.1f} s (seed {self.seed}){chosen}, {self.added} stored: {self.transitions:,} "
+                f"transitions in the replay buffer ({self.seconds:.1f} s in all)")
 
 
 @dataclass
@@ -200,7 +203,8 @@ def store(replay_buffer, tr: Transitions) -> int:
 class Witnesses:
     """The oracle's action sequences for a run's demonstration states: ``starts [K, n]``, one
     sequence ``[N_i, m]`` each (environment units, ``1 <= N_i <=`` the longest episode) and the
-    episode length of its replay; ``states`` drawn with ``seed``; ``reason`` why none were sought."""
+    episode length of its replay; ``states`` searched, drawn with ``seed``, of which ``solved``
+    gave a sequence (before :func:`longest` chose among them); ``reason`` why none were sought."""
 
     seed: int
     states: int
@@ -209,17 +213,24 @@ class Witnesses:
     lengths: np.ndarray
     oracle_seconds: float = 0.0
     reason: Optional[str] = None
+    solved: Optional[int] = None
+
+    def __post_init__(self) -> None:
+        if self.solved is None:
+            self.solved = len(self.sequences)
 
 
 def solve(prog, task: str, count: int, run_seed: int, *, workers: Optional[int] = None,
-          state_seconds: float = DEMONSTRATION_STATE_SECONDS,
+          state_seconds: float = DEMONSTRATION_STATE_SECONDS, budget_seconds: Optional[float] = None,
           check_stop: Optional[Callable[[], None]] = None) -> Witnesses:
     """Draw ``count`` initial states of ``task`` (seed :func:`demonstration_seed` of ``run_seed``)
     and solve them with the oracle (``workers`` processes; default one per core, or one where
-    JAX is loaded already, as in a sweep's worker after its first run). A sequence
-    longer than the task's longest episode is left out, as is a state already in the goal; each
-    replay's episode length is drawn from the task's range, at least its sequence's length.
-    ``check_stop()`` is called as the oracle progresses (it raises to abandon the search).
+    JAX is loaded already, as in a sweep's worker after its first run). With ``budget_seconds``
+    the states are solved a batch at a time and the search stops once the budget is spent (the
+    states not reached are left out). A sequence longer than the task's longest episode is left
+    out, as is a state already in the goal; each replay's episode length is drawn from the task's
+    range, at least its sequence's length. ``check_stop()`` is called as the oracle progresses (it
+    raises to abandon the search).
     """
     from asap_dsl.limits import available_cores
 
@@ -234,20 +245,45 @@ def solve(prog, task: str, count: int, run_seed: int, *, workers: Optional[int] 
     if workers is None:  # forking a process that runs JAX may deadlock: one process then
         workers = 1 if "jax" in sys.modules else available_cores()
     n_workers = max(1, min(int(workers), len(states)))
+    # Under a budget: batches of a few states per worker, so that the overrun is one batch's time.
+    batch = len(states) if budget_seconds is None else max(1, 8 * n_workers)
+    results = []
     try:
-        report = run_oracle(prog, task, states=states, workers=n_workers, time_limit=state_seconds,
-                            progress=None if check_stop is None else (lambda _k: check_stop()))
+        for lo in range(0, len(states), batch):
+            if budget_seconds is not None and results and time.perf_counter() - start >= budget_seconds:
+                break
+            chunk = states[lo:lo + batch]
+            report = run_oracle(prog, task, states=chunk, workers=min(n_workers, len(chunk)),
+                                time_limit=state_seconds,
+                                progress=None if check_stop is None else (lambda _k: check_stop()))
+            results.extend(report.results)
     except OracleUnsupported as err:
         return Witnesses(seed, len(states), np.zeros((0, n)), [], np.zeros(0, np.int64),
                          time.perf_counter() - start, f"the oracle does not treat this task: {err}")
     kmin, kmax = tm.episode
-    usable = [r for r in report.results
+    usable = [r for r in results
               if r.status == "solved" and r.actions is not None and 1 <= len(r.actions) <= kmax]
     rng = np.random.default_rng([seed, 1])
     lengths = np.array([rng.integers(max(kmin, len(r.actions)), kmax + 1) for r in usable], dtype=np.int64)
     starts = np.stack([np.asarray(r.x0, float) for r in usable]) if usable else np.zeros((0, n))
-    return Witnesses(seed, len(states), starts, [np.asarray(r.actions, float) for r in usable], lengths,
+    return Witnesses(seed, len(results), starts, [np.asarray(r.actions, float) for r in usable], lengths,
                      time.perf_counter() - start)
+
+
+def longest(witnesses: Witnesses, share: float = 1.0, repeat: int = 1) -> Witnesses:
+    """The longest ``share`` of the witnesses' sequences (at least one, ties at the cut kept),
+    each ``repeat`` times: the manoeuvres a learner seldom finds by itself (backing up, looping,
+    swinging), weighted in the replay buffer. ``share`` 1 and ``repeat`` 1 keep them as they are."""
+    if not 0.0 < share <= 1.0 or int(repeat) < 1:
+        raise ValueError(f"share must be in (0, 1] and repeat at least 1; got {share}, {repeat}")
+    w = witnesses
+    if not w.sequences or (share >= 1.0 and repeat == 1):
+        return w
+    steps = np.array([len(s) for s in w.sequences])
+    keep_n = max(1, int(np.ceil(share * len(steps))))
+    cut = np.sort(steps)[::-1][keep_n - 1]
+    keep = [i for i in range(len(steps)) if steps[i] >= cut for _ in range(int(repeat))]
+    return replace(w, starts=w.starts[keep], sequences=[w.sequences[i] for i in keep], lengths=w.lengths[keep])
 
 
 def add_demonstrations(prog, task: str, model, wrap: Callable, scaling, witnesses: Witnesses,
@@ -269,6 +305,7 @@ def add_demonstrations(prog, task: str, model, wrap: Callable, scaling, witnesse
                              w.lengths)
         added, stored = int(reached.sum()), len(tr)
         store(model.replay_buffer, tr)
-    return Demonstrations(states=w.states, solved=len(w.sequences), added=added, transitions=stored,
+    return Demonstrations(states=w.states, solved=int(w.solved), replays=len(w.sequences), added=added,
+                          transitions=stored,
                           oracle_seconds=w.oracle_seconds, seconds=w.oracle_seconds + time.perf_counter() - start,
                           seed=w.seed)

@@ -29,6 +29,7 @@ from asap_dsl.runs import (Checkpoint, RunDir, RunError, check_target, checkpoin
 from asap_dsl.sampling import task_states
 
 from .config import ConfigError, TrainConfig, resolve_config
+from .curriculum import failed_starts_env
 from .presets import OFF_POLICY, get_preset
 from .engines import Engine, get_engine
 from .exploration import LateDemonstrations, add_late
@@ -166,7 +167,10 @@ class _Session:
         self.tolerances = sorted(self.task.tolerances)
         self.scaling = Scaling.for_run(prog.system, cfg, self.task.init_box)
         self.raw_env = make_vec_env(prog, cfg.task, num_envs=cfg.n_envs, seed=cfg.seed, reward=cfg.reward)
-        self.env = self.learner_env(self.raw_env)
+        # The failed-starts curriculum (:mod:`.curriculum`) is the learner's alone: not the replays'.
+        self.curriculum = (failed_starts_env(self.raw_env, cfg.failed_starts, cfg.seed)
+                           if cfg.failed_starts > 0 else None)
+        self.env = self.learner_env(self.raw_env if self.curriculum is None else self.curriculum)
         val_states = task_states(prog.system, self.task, cfg.validation_episodes, seed=cfg.validation_seed)
         self.validator = Evaluator(prog, cfg.task, val_states, reward=cfg.reward)
         self.curves: list[dict] = []
@@ -198,7 +202,7 @@ class _Session:
         """A new run's demonstration sequences from the oracle (:mod:`.demonstrations`), before
         the model is built (its workers are forked: not from a process running JAX). Their wall
         time counts as the run's, the time limit's included. None where the run has none."""
-        from .demonstrations import solve, unavailable
+        from .demonstrations import longest, solve, unavailable
 
         if self.cfg.demonstrations <= 0:
             why = unavailable(self.prog, self.cfg.algo)
@@ -210,8 +214,12 @@ class _Session:
             if self.stop.requested:
                 raise KeyboardInterrupt
 
-        self._tell(f"demonstrations: the oracle on {self.cfg.demonstrations:,} initial states of the run's own seed ...")
-        return solve(self.prog, self.cfg.task, self.cfg.demonstrations, self.cfg.seed, check_stop=check_stop)
+        budget = self.cfg.demonstration_seconds
+        self._tell(f"demonstrations: the oracle on {self.cfg.demonstrations:,} initial states of the run's own seed"
+                   + ("" if budget is None else f", for at most {budget:.0f} s") + " ...")
+        found = solve(self.prog, self.cfg.task, self.cfg.demonstrations, self.cfg.seed, budget_seconds=budget,
+                      check_stop=check_stop)
+        return longest(found, self.cfg.demonstration_share, self.cfg.demonstration_repeat)
 
     def demonstrate(self, model, witnesses) -> dict:
         """The witnesses' transitions into ``model``'s replay buffer, told to the progress display."""
@@ -272,6 +280,7 @@ class _Session:
     def state(self, model) -> dict:
         return {"steps": int(model.num_timesteps), "seconds": self.seconds, "best": self.best,
                 "curves": self.curves, "late_demonstrations": None if self.late is None else self.late.added,
+                "failed_starts": None if self.curriculum is None else self.curriculum.state(),
                 **self.schedule.to_dict()}
 
     def checkpoint(self, model, run: Optional[RunDir] = None) -> None:
@@ -298,6 +307,8 @@ class _Session:
         self.schedule.restore(state)
         if self.late is not None:  # added before the checkpoint: never again
             self.late.added = state.get("late_demonstrations")
+        if self.curriculum is not None and state.get("failed_starts") is not None:
+            self.curriculum.restore(state["failed_starts"])
         self.seconds_before = float(state["seconds"])
         if int(model.num_timesteps) != int(state["steps"]):
             raise RunError(f"{self.run.path}: the checkpoint is inconsistent (model at step {model.num_timesteps}, "
@@ -383,7 +394,7 @@ def train(spec: Union[str, Path, Program], task: Optional[str] = None, *, algo: 
           settings: Optional[Mapping[str, Any]] = None, progress: Optional[TrainProgress] = None,
           evaluate: bool = True, eval_episodes: Optional[int] = None, callbacks: Sequence = (),
           time_limit: Optional[float] = None, engine: Optional[str] = None,
-          demonstrations: Optional[int] = None) -> TrainResult:
+          demonstrations: Optional[int] = None, failed_starts: Optional[float] = None) -> TrainResult:
     """Train ``task`` of a spec with stable-baselines3's API (on torch or JAX) and evaluate the
     best model.
 
@@ -421,6 +432,8 @@ def train(spec: Union[str, Path, Program], task: Optional[str] = None, *, algo: 
     :param demonstrations: initial states whose oracle action sequences go into the replay buffer
         before learning (:mod:`asap_dsl.backends.rl.demonstrations`; default: the preset's where
         the algorithm is off-policy and the dynamics known; 0: none). A resumed run keeps its own.
+    :param failed_starts: the share of new training episodes that start at the initial state of an
+        earlier one that did not reach (:mod:`asap_dsl.backends.rl.curriculum`; default: the preset's).
     :return: the run's directory, configuration, steps, best validation and final evaluation.
     :raises asap_dsl.SpecError: the spec does not load.
     :raises ConfigError: a setting cannot be used (one sentence).
@@ -432,12 +445,13 @@ def train(spec: Union[str, Path, Program], task: Optional[str] = None, *, algo: 
         prog = _program(spec)
         cfg = resolve_config(prog, task, algo=algo, reward=reward, steps=steps, seed=seed, preset=preset,
                              n_envs=n_envs, settings=settings, eval_episodes=eval_episodes, time_limit=time_limit,
-                             engine=engine, demonstrations=demonstrations)
+                             engine=engine, demonstrations=demonstrations, failed_starts=failed_starts)
         _check_memory(prog, cfg)
         run = RunDir(out if out is not None else Path(runs_dir) / default_run_name(prog.file, cfg.task, cfg.algo,
                                                                                  cfg.reward, cfg.seed))
         given = {"task": task, "algo": algo, "engine": engine, "reward": reward, "seed": seed, "preset": preset,
                  "n_envs": n_envs, "demonstrations": demonstrations,
+                 "failed_starts": failed_starts,
                  "settings": _hyper.normalise(dict(settings or {}), "settings")}  # as the run stores them
         try:
             return _run(prog, cfg, run, stop, resume=resume, force=force, given=given, steps=steps,
