@@ -8,14 +8,15 @@ process only, so that an idea can be judged in four minutes before it is built p
 
     .venv/bin/python benchmarks/screen.py specs/bicycle.asap --task reach_avoid --minutes 4 \\
         [--settings '{"gradient_steps": 2}'] [--algo td3] [--demonstrations 64] [--sbx-class TQC] \\
-        [--failure-times-deadline] [--end-at-reach] [--failed-starts 0.5] [--long-demos 300,18,4]
+        [--failure-times-deadline] [--end-at-reach] [--failed-starts 0.5]
 
 - ``--failure-times-deadline``: a failure step earns the reward's floor times the deadline.
 - ``--end-at-reach``: the learner's episodes end at the first reach, that step earning ``r_sat / (1 - gamma)``.
-- ``--failed-starts P``: a new episode starts, with probability P, from the initial state of an
-  earlier training episode that did not reach (drawn and removed from a buffer of 2000).
-- ``--long-demos N,L,R``: the oracle on N states of the run's demonstration seed (before the clock,
-  not counted), the sequences of at least L steps, each R times in the replay buffer first.
+- ``--failed-starts P`` and ``--demonstrations N``: the training's own settings (the default
+  preset's rules, :mod:`asap_dsl.backends.rl.curriculum` and ``.demonstrations``; ``0`` and ``0``
+  screen the default as it was before them). They were probes here first: the failed starts, and
+  the oracle's longest sequences (then ``--long-demos N,L,R``: N states, sequences of L steps or
+  more, each R times), measured before the rules were built.
 - ``--sbx-class``: sbx's ``CrossQ`` or ``TQC`` in place of SAC (the SAC settings it accepts).
 """
 
@@ -27,7 +28,6 @@ import inspect
 import json
 import sys
 import time
-from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -42,59 +42,27 @@ def _core(venv):
     return venv.core
 
 
-def _restart(wrapper, core, mask: np.ndarray, states: np.ndarray, obs: np.ndarray) -> None:
-    """Start the masked entries at ``states`` with the episode lengths they have now, their first
-    observations written into ``obs`` as the policy sees them (scaled)."""
-    raw = np.empty(obs.shape, dtype=np.float32)
-    core._start(states, np.asarray(core.k).copy(), mask, raw)
-    obs[mask] = wrapper.venv.scaling.observation(raw)[mask]
-
-
-def patch_learner_env(end_at_reach_gamma: float | None, failed_starts: float | None, seed: int) -> dict:
-    """Wrap the learner's ``step_wait`` with the episode variants; returns their counters."""
-    rng = np.random.default_rng(seed + 99)
-    stats = {"episodes": 0, "failed": 0, "replayed": 0, "ended_at_reach": 0}
-    buf: list = []
-    starts: dict = {}
+def patch_learner_env(end_at_reach_gamma: float) -> dict:
+    """Wrap the learner's ``step_wait``: episodes end at the first reach; returns the counters."""
+    stats = {"ended_at_reach": 0}
     orig = training._LearnerEnv.step_wait
 
     def step_wait(self):
         obs, reward, done, infos = orig(self)
         core = _core(self.venv)
-        if end_at_reach_gamma is not None:
-            newly = np.array([inf.get("t_reach") is not None and inf["t_reach"] == inf.get("t") and inf["t_reach"] > 0
-                              and not d for inf, d in zip(infos, done)])
-            if newly.any():
-                inner = getattr(core, "inner", core)
-                cand = core.states.copy()
-                cand[newly] = inner._sample(int(newly.sum()))[0]
-                for i in np.flatnonzero(newly):
-                    infos[i]["terminal_observation"] = obs[i].copy()
-                    infos[i]["TimeLimit.truncated"] = False
-                    reward[i] = inner.reward.r_sat / (1.0 - end_at_reach_gamma)
-                _restart(self, core, newly, cand, obs)
-                done = done | newly
-                stats["ended_at_reach"] += int(newly.sum())
-        if failed_starts is not None:
-            st = starts.setdefault(id(core), core.states.copy())
-            if done.any():
-                idx = np.flatnonzero(done)
-                for i in idx:
-                    stats["episodes"] += 1
-                    if infos[i].get("t_reach") is None:
-                        buf.append(st[i].copy())
-                        stats["failed"] += 1
-                del buf[:-2000]
-                take = np.zeros(core.B, dtype=bool)
-                for i in idx:
-                    take[i] = bool(buf) and rng.random() < failed_starts
-                if take.any():
-                    cand = core.states.copy()
-                    for i in np.flatnonzero(take):
-                        cand[i] = buf.pop(int(rng.integers(len(buf))))
-                    _restart(self, core, take, cand, obs)
-                    stats["replayed"] += int(take.sum())
-                st[idx] = core.states[idx]
+        newly = np.array([inf.get("t_reach") is not None and inf["t_reach"] == inf.get("t") and inf["t_reach"] > 0
+                          and not d for inf, d in zip(infos, done)])
+        if newly.any():
+            inner = getattr(core, "inner", core)
+            cand = core.states.copy()
+            cand[newly] = inner._sample(int(newly.sum()))[0]
+            for i in np.flatnonzero(newly):
+                infos[i]["terminal_observation"] = obs[i].copy()
+                infos[i]["TimeLimit.truncated"] = False
+                reward[i] = inner.reward.r_sat / (1.0 - end_at_reach_gamma)
+            obs[newly] = self.venv.scaling.observation(core.restart(newly, cand))
+            done = done | newly
+            stats["ended_at_reach"] += int(newly.sum())
         return obs, reward, done, infos
 
     training._LearnerEnv.step_wait = step_wait
@@ -113,20 +81,6 @@ def patch_failure_reward() -> None:
             self.floor = self.floor * task.deadline
 
     rewards.Reward.__init__ = init
-
-
-def patch_long_demos(prog, task: str, n: int, least: int, repeat: int) -> str:
-    """The oracle's long sequences as the run's demonstrations; returns what was found."""
-    from asap_dsl.backends.rl import demonstrations as D
-
-    t0 = time.time()
-    w = D.solve(prog, task, n, 0, workers=2, state_seconds=10.0)
-    keep = [i for i, s in enumerate(w.sequences) if len(s) >= least]
-    idx = [i for i in keep for _ in range(repeat)]
-    w2 = replace(w, oracle_seconds=0.0, starts=w.starts[idx], sequences=[w.sequences[i] for i in idx],
-                 lengths=w.lengths[idx])
-    D.solve = lambda *a, **k: w2
-    return f"oracle {time.time() - t0:.0f} s: {len(w.sequences)} solved, {len(keep)} of at least {least} steps"
 
 
 def patch_sbx_class(name: str) -> None:
@@ -161,30 +115,24 @@ def main() -> int:
     ap.add_argument("--failure-times-deadline", action="store_true")
     ap.add_argument("--end-at-reach", action="store_true")
     ap.add_argument("--failed-starts", type=float)
-    ap.add_argument("--long-demos", help="N,L,R")
     args = ap.parse_args()
     prog = asap_dsl.load(args.spec)
-    told = []
-    if args.long_demos:
-        n, least, repeat = (int(v) for v in args.long_demos.split(","))
-        told.append(patch_long_demos(prog, args.task, n, least, repeat))
-        args.demonstrations = n
     gamma = presets.discount(prog.task(args.task).model.deadline, presets.DEFAULT.horizon)
     stats: dict = {}
-    if args.end_at_reach or args.failed_starts is not None:  # the plain default keeps its own step
-        stats = patch_learner_env(gamma if args.end_at_reach else None, args.failed_starts, args.seed)
+    if args.end_at_reach:  # the plain default keeps its own step
+        stats = patch_learner_env(gamma)
     if args.failure_times_deadline:
         patch_failure_reward()
     if args.sbx_class:
         patch_sbx_class(args.sbx_class)
-    kw = {k: getattr(args, k) for k in ("algo", "demonstrations") if getattr(args, k) is not None}
+    kw = {k: getattr(args, k) for k in ("algo", "demonstrations", "failed_starts") if getattr(args, k) is not None}
     t0 = time.time()
     res = asap_dsl.train(prog, args.task, steps=5_000_000, seed=args.seed, out=args.out, force=True,
                          time_limit=args.minutes * 60, evaluate=False, settings=args.settings, **kw)
     rows = list(csv.DictReader(open(Path(args.out) / "curves.csv")))[-5:]
     last = [round(100 * sum(float(r[k]) for r in rows) / len(rows), 1) for k in sorted(
         (k for k in rows[0] if k.startswith("success_")), key=lambda k: int(k.split("_")[1]))]
-    print(" ".join(sys.argv[1:]), *told, json.dumps(stats), f"steps {res.steps} seconds {res.seconds:.0f} "
+    print(" ".join(sys.argv[1:]), json.dumps(stats), f"steps {res.steps} seconds {res.seconds:.0f} "
           f"wall {time.time() - t0:.0f}; mean of the last {len(rows)} validations (tightest first): {last}")
     return 0
 

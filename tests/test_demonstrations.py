@@ -220,3 +220,24 @@ def test_a_run_that_finds_nothing_gets_the_oracles_sequences_once(tmp_path, caps
                          "--out", tmp_path / "near")
     assert code == 0 and "no validation has succeeded" not in err
     assert "late_demonstrations" not in RunDir(tmp_path / "near").read_manifest()
+
+
+def test_a_second_run_of_the_same_seed_reads_the_sequences_back_and_is_charged_their_time(rail, monkeypatch):
+    from asap_dsl.backends.oracle import solver
+    from asap_dsl.backends.rl.demonstrations import solve
+
+    first = solve(rail, "go", 12, 5, workers=1, budget_seconds=60.0)
+    assert not first.cached and first.sequences and first.oracle_seconds > 0
+
+    def no_oracle(*_a, **_k):
+        raise AssertionError("the oracle ran again")
+
+    monkeypatch.setattr(solver, "run", no_oracle)
+    again = solve(rail, "go", 12, 5, workers=1, budget_seconds=60.0)
+    assert again.cached and again.oracle_seconds == pytest.approx(first.oracle_seconds)
+    assert np.array_equal(again.starts, first.starts) and np.array_equal(again.lengths, first.lengths)
+    assert all(np.array_equal(a, b) for a, b in zip(again.sequences, first.sequences))
+    with pytest.raises(AssertionError, match="ran again"):  # another budget is another search
+        solve(rail, "go", 12, 5, workers=1, budget_seconds=30.0)
+    with pytest.raises(AssertionError, match="ran again"):
+        solve(rail, "go", 12, 5, workers=1, budget_seconds=60.0, cache=False)

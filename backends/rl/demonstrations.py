@@ -72,6 +72,7 @@ class Demonstrations:
     seconds: float = 0.0
     seed: Optional[int] = None
     reason: Optional[str] = None
+    cached: bool = False  # the oracle's sequences were read back from the cache (its seconds charged all the same)
 
     def to_dict(self) -> dict:
         return asdict(self)
@@ -81,8 +82,9 @@ class Demonstrations:
         if self.reason is not None:
             return f"demonstrations: none ({self.reason})"
         chosen = "" if self.replays == self.solved else f", {self.replays} replays of the longest"
+        where = ", read back from the cache" if self.cached else ""
         return (f"demonstrations: {self.solved} of {self.states} states solved by the oracle in "
-                f"{self.oracle_seconds:.1f} s (seed {self.seed}){chosen}, {self.added} stored: {self.transitions:,} "
+                f"{self.oracle_seconds:.1f} s (seed {self.seed}{where}){chosen}, {self.added} stored: {self.transitions:,} "
                 f"transitions in the replay buffer ({self.seconds:.1f} s in all)")
 
 
@@ -214,15 +216,31 @@ class Witnesses:
     oracle_seconds: float = 0.0
     reason: Optional[str] = None
     solved: Optional[int] = None
+    cached: bool = False  # read back from the cache (``oracle_seconds`` are then the search's that stored it)
 
     def __post_init__(self) -> None:
         if self.solved is None:
             self.solved = len(self.sequences)
 
+    def to_json(self) -> dict:
+        return {"seed": self.seed, "states": self.states, "solved": self.solved, "oracle_seconds": self.oracle_seconds,
+                "starts": np.asarray(self.starts, float).tolist(), "lengths": np.asarray(self.lengths).tolist(),
+                "sequences": [np.asarray(q, float).tolist() for q in self.sequences]}
+
+    @classmethod
+    def from_json(cls, data: dict, n: int) -> "Witnesses":
+        starts = np.asarray(data["starts"], float).reshape(-1, n)
+        seqs = [np.asarray(q, float) for q in data["sequences"]]
+        lengths = np.asarray(data["lengths"], np.int64)
+        if not (len(starts) == len(seqs) == len(lengths)):
+            raise ValueError("inconsistent witnesses")
+        return cls(int(data["seed"]), int(data["states"]), starts, seqs, lengths, float(data["oracle_seconds"]),
+                   solved=int(data["solved"]), cached=True)
+
 
 def solve(prog, task: str, count: int, run_seed: int, *, workers: Optional[int] = None,
           state_seconds: float = DEMONSTRATION_STATE_SECONDS, budget_seconds: Optional[float] = None,
-          check_stop: Optional[Callable[[], None]] = None) -> Witnesses:
+          check_stop: Optional[Callable[[], None]] = None, cache: bool = True) -> Witnesses:
     """Draw ``count`` initial states of ``task`` (seed :func:`demonstration_seed` of ``run_seed``)
     and solve them with the oracle (``workers`` processes; default one per core, or one where
     JAX is loaded already, as in a sweep's worker after its first run). With ``budget_seconds``
@@ -231,6 +249,11 @@ def solve(prog, task: str, count: int, run_seed: int, *, workers: Optional[int] 
     out, as is a state already in the goal; each replay's episode length is drawn from the task's
     range, at least its sequence's length. ``check_stop()`` is called as the oracle progresses (it
     raises to abandon the search).
+
+    With ``cache``, what was found is kept beside the oracle's cache (per spec hash, task, seed,
+    count, time per state and budget) and read back by the next run that asks the same: a sweep's
+    runs of one seed (every reward and algorithm) learn from the same sequences, and each is
+    charged the search's seconds all the same, so that time-limited runs stay comparable.
     """
     from asap_dsl.limits import available_cores
 
@@ -241,6 +264,11 @@ def solve(prog, task: str, count: int, run_seed: int, *, workers: Optional[int] 
     seed = demonstration_seed(run_seed)
     tm = prog.task(task).model
     n = prog.system.n_state
+    path = _cache_path(prog, task, seed, int(count), state_seconds, budget_seconds) if cache else None
+    if path is not None:
+        hit = _load(path, n)
+        if hit is not None:
+            return hit
     states = task_states(prog.system, tm, int(count), seed=seed)
     if workers is None:  # forking a process that runs JAX may deadlock: one process then
         workers = 1 if "jax" in sys.modules else available_cores()
@@ -266,8 +294,36 @@ def solve(prog, task: str, count: int, run_seed: int, *, workers: Optional[int] 
     rng = np.random.default_rng([seed, 1])
     lengths = np.array([rng.integers(max(kmin, len(r.actions)), kmax + 1) for r in usable], dtype=np.int64)
     starts = np.stack([np.asarray(r.x0, float) for r in usable]) if usable else np.zeros((0, n))
-    return Witnesses(seed, len(results), starts, [np.asarray(r.actions, float) for r in usable], lengths,
-                     time.perf_counter() - start)
+    found = Witnesses(seed, len(results), starts, [np.asarray(r.actions, float) for r in usable], lengths,
+                      time.perf_counter() - start)
+    if path is not None:
+        from asap_dsl.runs import atomic_write_json
+
+        try:
+            atomic_write_json(path, found.to_json())
+        except OSError:  # a cache that cannot be written: the next run searches again
+            pass
+    return found
+
+
+def _cache_path(prog, task: str, seed: int, count: int, state_seconds: float, budget: Optional[float]):
+    from asap_dsl.runs import spec_hash
+
+    from ..oracle.cache import cache_dir
+
+    bound = "none" if budget is None else f"{float(budget):g}"
+    return (cache_dir() / "demonstrations"
+            / f"{spec_hash(prog.source)[:16]}-{task}-s{seed}-n{count}-t{float(state_seconds):g}-b{bound}.json")
+
+
+def _load(path, n: int) -> Optional[Witnesses]:
+    """Cached witnesses, or None where absent or damaged (then searched again)."""
+    import json
+
+    try:
+        return Witnesses.from_json(json.loads(path.read_text(encoding="utf-8")), n)
+    except (OSError, ValueError, KeyError, TypeError):
+        return None
 
 
 def longest(witnesses: Witnesses, share: float = 1.0, repeat: int = 1) -> Witnesses:
@@ -306,6 +362,6 @@ def add_demonstrations(prog, task: str, model, wrap: Callable, scaling, witnesse
         added, stored = int(reached.sum()), len(tr)
         store(model.replay_buffer, tr)
     return Demonstrations(states=w.states, solved=int(w.solved), replays=len(w.sequences), added=added,
-                          transitions=stored,
+                          transitions=stored, cached=w.cached,
                           oracle_seconds=w.oracle_seconds, seconds=w.oracle_seconds + time.perf_counter() - start,
                           seed=w.seed)
