@@ -144,3 +144,30 @@ def test_the_default_preset_has_both_rules_sized_to_the_run(rail):
     assert resolve_config(rail, failed_starts=0).failed_starts == 0.0
     with pytest.raises(ConfigError, match="between 0 and 1"):
         resolve_config(rail, failed_starts=2)
+
+
+def test_a_failure_earns_the_floor_for_ever_so_that_leaving_never_pays(rail):
+    """Leaving the state space (or ``avoid``) ends the episode: with the floor earned once, a state
+    the learner cannot solve is better left than struggled with (the bicycle's policy learnt that
+    with failed starts). The default's learner earns it for every step after: floor / (1 - gamma)."""
+    from asap_dsl.backends.rl.config import resolve_config
+    from asap_dsl.env import make_vec_env
+
+    cfg = resolve_config(rail)
+    floor = make_vec_env(rail, num_envs=1).core.reward.floor
+    assert floor < 0 and cfg.failure_reward == pytest.approx(floor / (1 - cfg.hyper["gamma"]))
+    assert resolve_config(rail, preset="paper").failure_reward is None
+    assert resolve_config(rail, reward="distance").failure_reward is None  # no floor to repeat
+    env = make_vec_env(rail, num_envs=1, seed=0, failure_reward=cfg.failure_reward)
+    env.reset()
+    env.core.start(np.array([[-1.5]]), 20)
+    rewards = []
+    for _ in range(5):  # x' = 2u: two steps into the pit
+        env.step_async(np.array([[-1.0]]))
+        _, r, done, info = env.step_wait()
+        rewards.append(float(r[0]))
+        if done[0]:
+            break
+    assert info[0]["end_reason"] == "avoid" and rewards[-1] == pytest.approx(cfg.failure_reward, rel=1e-6)
+    # no episode that goes on can earn less: every step earns at least the floor
+    assert all(r >= floor - 1e-9 for r in rewards[:-1]) and sum(rewards[:-1]) > cfg.failure_reward

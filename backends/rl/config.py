@@ -72,6 +72,8 @@ class TrainConfig:
     demonstration_repeat: int = 1
     demonstration_seconds: Optional[float] = None
     failed_starts: float = 0.0  # the share of new episodes started where an earlier one failed (:mod:`.curriculum`)
+    # The learner's reward of a failure step (None: the reward's floor, as the task defines it).
+    failure_reward: Optional[float] = None
     # Each state entry's scaling box (init, state or none: asap_dsl.observation); None in runs from
     # before it was recorded, which used observation_scaling's box for every entry.
     observation_sources: Optional[dict[str, str]] = None
@@ -85,7 +87,7 @@ class TrainConfig:
         data = {"engine": REFERENCE, **data}  # a run from before engines: stable-baselines3 trained it
         missing = names - set(data) - {"time_limit", "demonstrations", "late_demonstrations", "observation_sources",
                                          "demonstration_share", "demonstration_repeat", "demonstration_seconds",
-                                         "failed_starts"}  # runs from before them had none
+                                         "failed_starts", "failure_reward"}  # runs from before them had none
         if missing:
             raise ConfigError(f"the stored configuration lacks {', '.join(sorted(missing))}")
         for f in fields(cls):  # a manifest edited by hand: one sentence, not a crash deep in training
@@ -191,7 +193,8 @@ def resolve_config(prog, task: Optional[str] = None, *, algo: Optional[str] = No
         eval_episodes=episodes, hyper=hyper, time_limit=None if time_limit is None else float(time_limit),
         demonstrations=demos, late_demonstrations=late, observation_sources=sources,
         demonstration_share=p.demonstration_share, demonstration_repeat=p.demonstration_repeat,
-        demonstration_seconds=p.demonstration_budget(time_limit), failed_starts=float(restarts))
+        demonstration_seconds=p.demonstration_budget(time_limit), failed_starts=float(restarts),
+        failure_reward=_failure_reward(prog, t, model, hyper, p.failure_forever))
 
 
 def _hyperparameters(preset: Mapping[str, Any], block: Mapping[str, Any], settings: Optional[Mapping[str, Any]],
@@ -210,6 +213,22 @@ def _hyperparameters(preset: Mapping[str, Any], block: Mapping[str, Any], settin
         return _hyper.check(algo, engine, _hyper.merge(*layers), foreign_ok=foreign)
     except ValueError as err:
         raise ConfigError(str(err)) from None
+
+
+def _failure_reward(prog, task, reward_model, hyper: Mapping[str, Any], forever: bool) -> Optional[float]:
+    """With ``forever``, a failure step earns the reward's floor for every step after it,
+    ``floor / (1 - gamma)``: the least any episode that goes on could earn, so that ending an
+    episode by leaving the state space (or by ``avoid``) is never the learner's way out of a state
+    it cannot solve. None otherwise, or where the reward has no floor (``distance``)."""
+    from asap_dsl.rewards import Reward
+
+    if not forever:
+        return None
+    floor = Reward(task, prog.regions, prog.system.n_state, 1, reward_model).floor
+    gamma = float(hyper.get("gamma", 0.99))
+    if floor is None or not 0.0 <= gamma < 1.0:
+        return None
+    return float(floor / (1.0 - gamma))
 
 
 def _demonstrations(prog, algo: str, explicit: Optional[int], preset: int) -> int:

@@ -129,7 +129,7 @@ def _start_at_class():
 
 def replay(prog, task: str, reward: Any, wrap: Callable, policy_action: Callable[[np.ndarray], np.ndarray],
            buffer_action: Callable[[np.ndarray], np.ndarray], starts: np.ndarray, sequences: list[np.ndarray],
-           lengths: np.ndarray) -> tuple[Transitions, np.ndarray]:
+           lengths: np.ndarray, failure_reward: Optional[float] = None) -> tuple[Transitions, np.ndarray]:
     """Replay each action sequence (environment units, ``[N_i, m]``) from its initial state
     through the learner's environment and collect the transitions as SB3's off-policy collection
     stores them (``_store_transition``: a finished entry's next observation is its
@@ -139,13 +139,14 @@ def replay(prog, task: str, reward: Any, wrap: Callable, policy_action: Callable
     :param policy_action: environment actions ``[B, m]`` to the actions the policy would give.
     :param buffer_action: the policy's actions to what the replay buffer stores.
     :param lengths: the episode length of each replay (at least its sequence's length).
+    :param failure_reward: the learner's reward of a failure step (the run's ``failure_reward``).
     :return: the transitions of the sequences that reached the goal without failing, and which
         those were (a bool per sequence).
     """
     from asap_dsl.env import make_vec_env
 
     B = len(sequences)
-    raw = make_vec_env(prog, task, num_envs=B, reward=reward)
+    raw = make_vec_env(prog, task, num_envs=B, reward=reward, failure_reward=failure_reward)
     env = wrap(_start_at_class()(raw, np.asarray(starts, float), np.asarray(lengths, np.int64)))
     obs = env.reset()
     m = raw.action_space.shape[0]
@@ -343,7 +344,7 @@ def longest(witnesses: Witnesses, share: float = 1.0, repeat: int = 1) -> Witnes
 
 
 def add_demonstrations(prog, task: str, model, wrap: Callable, scaling, witnesses: Witnesses,
-                       reward: Any = None) -> Demonstrations:
+                       reward: Any = None, failure_reward: Optional[float] = None) -> Demonstrations:
     """Replay each of the oracle's sequences through the learner's environment (``wrap`` and
     ``scaling``: :class:`~asap_dsl.backends.rl.sb3.Scaling`) and store the transitions of those
     that reach the goal in ``model.replay_buffer``; returns what was done."""
@@ -358,7 +359,7 @@ def add_demonstrations(prog, task: str, model, wrap: Callable, scaling, witnesse
             return np.clip(model.policy.scale_action(u), -1.0, 1.0)
 
         tr, reached = replay(prog, task, reward, wrap, scaling.policy_action, buffer_action, w.starts, w.sequences,
-                             w.lengths)
+                             w.lengths, failure_reward)
         added, stored = int(reached.sum()), len(tr)
         store(model.replay_buffer, tr)
     return Demonstrations(states=w.states, solved=int(w.solved), replays=len(w.sequences), added=added,

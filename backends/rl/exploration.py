@@ -83,7 +83,7 @@ def add_late(session, model, steps: int) -> Optional[dict]:
     except _Stopped:
         return None
     demos = add_demonstrations(session.prog, cfg.task, model, session.learner_env, session.scaling, witnesses,
-                               reward=cfg.reward)
+                               reward=cfg.reward, failure_reward=cfg.failure_reward)
     rule.added = {**demos.to_dict(), "at_step": int(steps)}
     session._tell(demos.text())
     session.run.update_manifest(late_demonstrations=rule.added)

@@ -166,7 +166,8 @@ class _Session:
         self.task = prog.task(cfg.task).model
         self.tolerances = sorted(self.task.tolerances)
         self.scaling = Scaling.for_run(prog.system, cfg, self.task.init_box)
-        self.raw_env = make_vec_env(prog, cfg.task, num_envs=cfg.n_envs, seed=cfg.seed, reward=cfg.reward)
+        self.raw_env = make_vec_env(prog, cfg.task, num_envs=cfg.n_envs, seed=cfg.seed, reward=cfg.reward,
+                                    failure_reward=cfg.failure_reward)
         # The failed-starts curriculum (:mod:`.curriculum`) is the learner's alone: not the replays'.
         self.curriculum = (failed_starts_env(self.raw_env, cfg.failed_starts, cfg.seed)
                            if cfg.failed_starts > 0 else None)
@@ -226,7 +227,7 @@ class _Session:
         from .demonstrations import add_demonstrations
 
         demos = add_demonstrations(self.prog, self.cfg.task, model, self.learner_env, self.scaling, witnesses,
-                                   reward=self.cfg.reward)
+                                   reward=self.cfg.reward, failure_reward=self.cfg.failure_reward)
         self.seconds_before += demos.seconds
         self.started = time.perf_counter()  # what came before is counted in the line above
         if self.cfg.time_limit is not None:  # validations on the clock: spread over the time left
