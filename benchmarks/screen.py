@@ -18,6 +18,7 @@ process only, so that an idea can be judged in four minutes before it is built p
   the oracle's longest sequences (then ``--long-demos N,L,R``: N states, sequences of L steps or
   more, each R times), measured before the rules were built.
 - ``--sbx-class``: sbx's ``CrossQ`` or ``TQC`` in place of SAC (the SAC settings it accepts).
+- ``--lr-drop AT,FACTOR``: after the share AT of the time limit, the learning rate times FACTOR.
 """
 
 from __future__ import annotations
@@ -83,6 +84,26 @@ def patch_failure_reward() -> None:
     rewards.Reward.__init__ = init
 
 
+def lr_drop_callback(at_seconds: float, factor: float):
+    """A callback that multiplies the learning rate by ``factor`` once ``at_seconds`` of wall time
+    have passed (both engines read ``model.lr_schedule`` before each update)."""
+    from stable_baselines3.common.callbacks import BaseCallback
+
+    class LrDrop(BaseCallback):
+        def _on_training_start(self) -> None:
+            self.t0, self.done = time.perf_counter(), False
+
+        def _on_step(self) -> bool:
+            if not self.done and time.perf_counter() - self.t0 >= at_seconds:
+                lr = float(self.model.lr_schedule(1.0)) * factor
+                self.model.lr_schedule = lambda _p: lr
+                self.done = True
+                print(f"learning rate now {lr:g} at {self.num_timesteps} steps", file=sys.stderr)
+            return True
+
+    return LrDrop()
+
+
 def patch_sbx_class(name: str) -> None:
     import sbx
 
@@ -115,6 +136,7 @@ def main() -> int:
     ap.add_argument("--failure-times-deadline", action="store_true")
     ap.add_argument("--end-at-reach", action="store_true")
     ap.add_argument("--failed-starts", type=float)
+    ap.add_argument("--lr-drop", help="AT,FACTOR")
     args = ap.parse_args()
     prog = asap_dsl.load(args.spec)
     gamma = presets.discount(prog.task(args.task).model.deadline, presets.DEFAULT.horizon)
@@ -126,9 +148,14 @@ def main() -> int:
     if args.sbx_class:
         patch_sbx_class(args.sbx_class)
     kw = {k: getattr(args, k) for k in ("algo", "demonstrations", "failed_starts") if getattr(args, k) is not None}
+    callbacks = []
+    if args.lr_drop:
+        at, factor = (float(v) for v in args.lr_drop.split(","))
+        callbacks.append(lr_drop_callback(at * args.minutes * 60, factor))
     t0 = time.time()
-    res = asap_dsl.train(prog, args.task, steps=5_000_000, seed=args.seed, out=args.out, force=True,
-                         time_limit=args.minutes * 60, evaluate=False, settings=args.settings, **kw)
+    res = asap_dsl.train(prog, args.task, steps=20_000_000, seed=args.seed, out=args.out, force=True,
+                         time_limit=args.minutes * 60, evaluate=False, settings=args.settings, callbacks=callbacks,
+                         **kw)
     rows = list(csv.DictReader(open(Path(args.out) / "curves.csv")))[-5:]
     last = [round(100 * sum(float(r[k]) for r in rows) / len(rows), 1) for k in sorted(
         (k for k in rows[0] if k.startswith("success_")), key=lambda k: int(k.split("_")[1]))]

@@ -241,3 +241,31 @@ def test_a_second_run_of_the_same_seed_reads_the_sequences_back_and_is_charged_t
         solve(rail, "go", 12, 5, workers=1, budget_seconds=30.0)
     with pytest.raises(AssertionError, match="ran again"):
         solve(rail, "go", 12, 5, workers=1, budget_seconds=60.0, cache=False)
+
+
+def test_the_demonstrations_stay_in_the_buffer_once_it_wraps_round():
+    """A ring buffer forgets its oldest rows first: the demonstrations, stored before learning.
+    ``keep`` (called before each store, as the run's callback does) starts the next round after
+    them; where they would fill half the buffer or more, the buffer is left as it is."""
+    from gymnasium import spaces
+    from stable_baselines3.common.buffers import ReplayBuffer
+
+    from asap_dsl.backends.rl.demonstrations import keep
+
+    box = spaces.Box(-1, 1, (1,), np.float32)
+    rb = ReplayBuffer(10, box, box, n_envs=1)
+
+    def add(v: float) -> None:
+        keep(rb, 3)
+        rb.add(np.array([[v]]), np.array([[v]]), np.array([[0.0]]), np.array([0.0]), np.array([False]), [{}])
+
+    for v in (100, 101, 102):  # the demonstrations
+        rb.add(np.array([[v]]), np.array([[v]]), np.array([[0.0]]), np.array([0.0]), np.array([False]), [{}])
+    for v in range(25):  # the learner's own, well past a wrap
+        add(float(v))
+    assert list(rb.observations[:3, 0, 0]) == [100, 101, 102]
+    assert set(rb.observations[3:, 0, 0]) == set(range(18, 25))  # the latest seven of the learner's
+    big = ReplayBuffer(4, box, box, n_envs=1)
+    big.full, big.pos = True, 0
+    keep(big, 2)  # half of the buffer: not kept
+    assert big.pos == 0

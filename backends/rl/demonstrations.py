@@ -31,7 +31,7 @@ from .config import VALIDATION_SEED
 from .presets import OFF_POLICY
 
 __all__ = ["DEMONSTRATION_SEED_OFFSET", "DEMONSTRATION_STATE_SECONDS", "Demonstrations", "Witnesses",
-           "add_demonstrations", "demonstration_seed", "longest", "replay", "solve", "store", "unavailable"]
+           "add_demonstrations", "demonstration_seed", "keep", "longest", "replay", "solve", "store", "unavailable"]
 
 #: Added to the run's seed for the demonstrations' initial states (and their episode lengths).
 #: Larger than both fixed seeds, so that no run's seed can map onto them.
@@ -68,6 +68,7 @@ class Demonstrations:
     replays: int = 0
     added: int = 0
     transitions: int = 0
+    rows: int = 0  # the replay buffer's rows they fill (from its first): kept for the whole run (:func:`keep`)
     oracle_seconds: float = 0.0
     seconds: float = 0.0
     seed: Optional[int] = None
@@ -200,6 +201,16 @@ def store(replay_buffer, tr: Transitions) -> int:
         infos = [{"TimeLimit.truncated": bool(x)} for x in tr.timeouts[j]]
         replay_buffer.add(tr.obs[j], tr.next_obs[j], tr.actions[j], tr.rewards[j], tr.dones[j], infos)
     return rows * n
+
+
+def keep(replay_buffer, rows: int) -> None:
+    """Keep the first ``rows`` rows of a ring buffer (the demonstrations) for the whole run: once it
+    has wrapped round, its next row is the first after them, not theirs. Called before each store.
+    A replay buffer fills in a few minutes at a few thousand steps per second; without this, the
+    oracle's witnesses would be the first transitions it forgets. Where they would fill half of it
+    or more, nothing is kept (the learner's own transitions need the room)."""
+    if 0 < rows < replay_buffer.buffer_size // 2 and replay_buffer.full and replay_buffer.pos < rows:
+        replay_buffer.pos = rows
 
 
 @dataclass
@@ -353,7 +364,7 @@ def add_demonstrations(prog, task: str, model, wrap: Callable, scaling, witnesse
     if w.reason is not None:
         return Demonstrations(states=w.states, seed=w.seed, oracle_seconds=w.oracle_seconds,
                               seconds=w.oracle_seconds, reason=w.reason)
-    added = stored = 0
+    added = stored = rows = 0
     if w.sequences:
         def buffer_action(u: np.ndarray) -> np.ndarray:  # as SB3's _sample_action stores it
             return np.clip(model.policy.scale_action(u), -1.0, 1.0)
@@ -361,8 +372,8 @@ def add_demonstrations(prog, task: str, model, wrap: Callable, scaling, witnesse
         tr, reached = replay(prog, task, reward, wrap, scaling.policy_action, buffer_action, w.starts, w.sequences,
                              w.lengths, failure_reward)
         added, stored = int(reached.sum()), len(tr)
-        store(model.replay_buffer, tr)
+        rows = store(model.replay_buffer, tr) // model.replay_buffer.n_envs
     return Demonstrations(states=w.states, solved=int(w.solved), replays=len(w.sequences), added=added,
-                          transitions=stored, cached=w.cached,
+                          transitions=stored, rows=rows, cached=w.cached,
                           oracle_seconds=w.oracle_seconds, seconds=w.oracle_seconds + time.perf_counter() - start,
                           seed=w.seed)

@@ -30,6 +30,7 @@ from asap_dsl.sampling import task_states
 
 from .config import ConfigError, TrainConfig, resolve_config
 from .curriculum import failed_starts_env
+from .demonstrations import keep
 from .presets import OFF_POLICY, get_preset
 from .engines import Engine, get_engine
 from .exploration import LateDemonstrations, add_late
@@ -135,6 +136,8 @@ def _callbacks():
             n = self.num_timesteps
             if s.progress is not None:
                 s.progress.advance(n)
+            if s.kept_rows:  # before the step's transitions are stored (SB3 stores after on_step)
+                keep(self.model.replay_buffer, s.kept_rows)
             if s.schedule.due(n, s.seconds):
                 s.validate(self.model, n, self.logger)
             if s.stop.signal is not None:
@@ -184,6 +187,7 @@ class _Session:
         self.late = (LateDemonstrations(cfg.late_demonstrations, get_preset(cfg.preset).late_after)
                      if cfg.late_demonstrations > 0 else None)
         self.stop = stop if stop is not None else Interrupts()
+        self.kept_rows = 0  # the demonstrations' rows of the replay buffer, never overwritten
         self.time_up = False
         self.last_checkpoint = time.perf_counter()
         self.started = time.perf_counter()
@@ -229,6 +233,7 @@ class _Session:
         demos = add_demonstrations(self.prog, self.cfg.task, model, self.learner_env, self.scaling, witnesses,
                                    reward=self.cfg.reward, failure_reward=self.cfg.failure_reward)
         self.seconds_before += demos.seconds
+        self.kept_rows = demos.rows
         self.started = time.perf_counter()  # what came before is counted in the line above
         if self.cfg.time_limit is not None:  # validations on the clock: spread over the time left
             self.schedule.restart_clock(self.seconds_before, max(0.0, self.cfg.time_limit - self.seconds_before),
@@ -282,6 +287,7 @@ class _Session:
         return {"steps": int(model.num_timesteps), "seconds": self.seconds, "best": self.best,
                 "curves": self.curves, "late_demonstrations": None if self.late is None else self.late.added,
                 "failed_starts": None if self.curriculum is None else self.curriculum.state(),
+                "demonstration_rows": self.kept_rows,
                 **self.schedule.to_dict()}
 
     def checkpoint(self, model, run: Optional[RunDir] = None) -> None:
@@ -308,6 +314,7 @@ class _Session:
         self.schedule.restore(state)
         if self.late is not None:  # added before the checkpoint: never again
             self.late.added = state.get("late_demonstrations")
+        self.kept_rows = int(state.get("demonstration_rows") or 0)
         if self.curriculum is not None and state.get("failed_starts") is not None:
             self.curriculum.restore(state["failed_starts"])
         self.seconds_before = float(state["seconds"])
