@@ -19,6 +19,8 @@ process only, so that an idea can be judged in four minutes before it is built p
   more, each R times), measured before the rules were built.
 - ``--sbx-class``: sbx's ``CrossQ`` or ``TQC`` in place of SAC (the SAC settings it accepts).
 - ``--lr-drop AT,FACTOR``: after the share AT of the time limit, the learning rate times FACTOR.
+- ``--preset-set NAME=VALUE`` (repeatable): a field of the default preset for this process, to
+  screen a rule that is built but off (``demonstration_starts=0.25``, ``lr_drop=0.1``).
 """
 
 from __future__ import annotations
@@ -29,6 +31,7 @@ import inspect
 import json
 import sys
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -137,8 +140,15 @@ def main() -> int:
     ap.add_argument("--end-at-reach", action="store_true")
     ap.add_argument("--failed-starts", type=float)
     ap.add_argument("--lr-drop", help="AT,FACTOR")
+    ap.add_argument("--preset-set", action="append", default=[], metavar="NAME=VALUE")
     args = ap.parse_args()
     prog = asap_dsl.load(args.spec)
+    if args.preset_set:
+        fields = {}
+        for item in args.preset_set:
+            name, _, value = item.partition("=")
+            fields[name] = type(getattr(presets.DEFAULT, name))(json.loads(value))
+        presets.PRESETS["default"] = replace(presets.DEFAULT, **fields)
     gamma = presets.discount(prog.task(args.task).model.deadline, presets.DEFAULT.horizon)
     stats: dict = {}
     if args.end_at_reach:  # the plain default keeps its own step
