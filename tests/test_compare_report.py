@@ -198,3 +198,37 @@ def test_the_replayed_ceiling_is_replayed_again_when_the_ceiling_changes(tiny, t
     again = _baseline(prog, "go", "oracle", states, CachedOracle({**oracle.data, "states": worse}), tmp_path / "methods")
     assert len(list((tmp_path / "methods").glob("*.json"))) == 2
     assert again["per_state"]["t_reach"][0] is None and first["per_state"]["t_reach"][0] is not None
+
+
+def test_the_results_readme_is_built_from_the_reports_numbers_and_the_papers_cells(tmp_path):
+    """docs/results/README.md: the paper's cell beside ours (from report.json, which compare writes
+    beside report.md) and the ceiling; a cell below the paper is listed; a benchmark without its
+    report says so and how to make it."""
+    import json
+    import shutil
+
+    from asap_dsl.backends.compare.paper import readme
+    from asap_dsl.backends.compare.report import Method, ReportData, write
+    from conftest import ROOT
+
+    col = _column("bicycle", "oracle (local)", [4, 10, 15, 18, 20, 25, 12, 19, 13, 29])
+    methods = [Method(f"{r}/sac", r, "rl", {col.name: [_ev(STEPS), _ev(STEPS)]}) for r in ("asap", "rho", "distance")]
+    td3 = Method("asap/td3", "ASAP-Phi (td3)", "rl", {col.name: [_ev(STEPS)]})
+    paths = write(tmp_path / "bicycle", ReportData("t", [col], table1=methods, table2=[methods[0], td3], runs=[],
+                                                  table2_tolerances=[20]))
+    saved = json.loads(paths["json"].read_text())
+    assert saved["table2"][1]["cells"][col.name]["20"]["mean"] == pytest.approx(0.5)
+    shutil.copy(ROOT / "docs" / "results" / "paper.json", tmp_path / "paper.json")
+    (tmp_path / "bicycle" / "made.json").write_text(json.dumps({"command": "bash scripts/results bicycle",
+                                                                "wall_seconds": 1800, "machine": "2 cores"}))
+    text = readme(tmp_path)
+    t1 = text.split("## Table 1")[1].split("## Table 2")[0]
+    t2 = text.split("## Table 2")[1].split("## Where")[0]
+    # bicycle R within 30: the paper's 92.8 / 80.6 / 78.4 beside ours (9 of 10 states) and the ceiling (10 of 10)
+    assert "| bicycle | R | 30 | 92.8 | 90.0 ± 0.0 | 80.6 | 90.0 ± 0.0 | 78.4 | 90.0 ± 0.0 | 100.0 |" in t1
+    assert "| bicycle | R | 20 | 83.0 | 50.0 ± 0.0 | 76.8 | 50.0 |" in t2  # SAC, then TD3 (one seed)
+    assert "| dc_motor | R | 30 | 97.4 | — |" in t1  # no report yet
+    assert "Table 1, bicycle R within 30, ASAP-Phi: ours 90.0 ± 0.0 against 92.8" in text
+    assert "Table 1, bicycle R within 30, ρ reward" not in text  # ours, 90.0, is above the paper's 80.6
+    assert "| bicycle | [report](bicycle/report.md) | `bash scripts/results bicycle` | 30 min | 2 cores |" in text
+    assert "`bash scripts/results dc_motor attitude swimmer` makes them" in text

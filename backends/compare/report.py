@@ -22,10 +22,10 @@ from typing import Optional, Sequence
 import numpy as np
 
 from asap_dsl.formatting import percent
-from asap_dsl.runs import atomic_write
+from asap_dsl.runs import atomic_write, atomic_write_json, json_safe
 from asap_dsl.stats import mean_spread, rate, wilson_interval
 
-__all__ = ["Column", "Method", "ReportData", "markdown", "html_page", "write"]
+__all__ = ["Column", "Method", "ReportData", "markdown", "html_page", "summary", "write"]
 
 REWARD_NAMES = {"asap": "ASAP-Phi", "rho": "ρ reward", "distance": "d reward"}
 
@@ -358,11 +358,36 @@ def html_page(data: ReportData) -> str:
             + "\n".join(body) + "\n</body></html>\n")
 
 
+def summary(data: ReportData) -> dict:
+    """The report's numbers as plain data (``report.json``): per column its ceiling, per method of
+    each table its cells (mean, standard deviation and seeds of the rate, pooled interval) at every
+    tolerance the table shows, and its ASAP gap; what was run. What others build on the report
+    from (docs/results/README.md: :mod:`.paper`)."""
+    def rows(methods: list[Method], extra: Sequence[int]) -> list[dict]:
+        out = []
+        for m in methods:
+            cells = {col.name: {str(T): m.cell(col.name, T) for T in _tolerances([col], extra)
+                                if T in col.tolerances or T <= col.deadline}
+                     for col in data.columns}
+            out.append({"key": m.key, "label": m.label, "kind": m.kind, "cells": cells,
+                        "gap": {col.name: m.gap(col.name) for col in data.columns}})
+        return out
+
+    columns = [{"name": c.name, "spec": c.spec, "task": c.task, "tolerances": list(c.tolerances),
+                "deadline": c.deadline, "bound": c.bound, "black_box": c.black_box,
+                "ceiling": {str(T): r for T, r in (c.ceiling or {}).items()}} for c in data.columns]
+    return {"title": data.title, "columns": columns, "table1": rows(data.table1, ()),
+            "table2": rows(data.table2, data.table2_tolerances), "table2_tolerances": list(data.table2_tolerances),
+            "runs": data.runs, "versions": data.versions, "seconds": data.seconds, "notes": list(data.notes)}
+
+
 def write(out_dir: Path, data: ReportData) -> dict[str, Path]:
-    """Write ``report.md``, ``report.html`` and ``plots/*.png`` into ``out_dir`` (atomically)."""
+    """Write ``report.md``, ``report.html``, ``report.json`` (:func:`summary`) and ``plots/*.png``
+    into ``out_dir`` (atomically)."""
     out_dir = Path(out_dir)
     for name, png in data.plots.items():
         atomic_write(out_dir / "plots" / f"{name}.png", png)
     atomic_write(out_dir / "report.md", markdown(data))
     atomic_write(out_dir / "report.html", html_page(data))
-    return {"markdown": out_dir / "report.md", "html": out_dir / "report.html"}
+    atomic_write_json(out_dir / "report.json", json_safe(summary(data)))
+    return {"markdown": out_dir / "report.md", "html": out_dir / "report.html", "json": out_dir / "report.json"}
