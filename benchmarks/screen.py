@@ -20,7 +20,7 @@ process only, so that an idea can be judged in four minutes before it is built p
 - ``--sbx-class``: sbx's ``CrossQ`` or ``TQC`` in place of SAC (the SAC settings it accepts).
 - ``--lr-drop AT,FACTOR``: after the share AT of the time limit, the learning rate times FACTOR.
 - ``--preset-set NAME=VALUE`` (repeatable): a field of the default preset for this process, to
-  screen a rule that is built but off (``demonstration_starts=0.25``, ``lr_drop=0.1``).
+  screen a rule that is built but off (``demonstration_starts=0.25``).
 """
 
 from __future__ import annotations

@@ -75,9 +75,6 @@ class TrainConfig:
     demonstration_starts: float = 0.0  # ... and at a state along a demonstration
     # The learner's reward of a failure step (None: the reward's floor, as the task defines it).
     failure_reward: Optional[float] = None
-    # The learning rate times lr_drop after lr_patience validations without improvement (:mod:`.plateau`).
-    lr_drop: float = 1.0
-    lr_patience: int = 5
     # Each state entry's scaling box (init, state or none: asap_dsl.observation); None in runs from
     # before it was recorded, which used observation_scaling's box for every entry.
     observation_sources: Optional[dict[str, str]] = None
@@ -91,7 +88,7 @@ class TrainConfig:
         data = {"engine": REFERENCE, **data}  # a run from before engines: stable-baselines3 trained it
         missing = names - set(data) - {"time_limit", "demonstrations", "late_demonstrations", "observation_sources",
                                          "demonstration_share", "demonstration_repeat", "demonstration_seconds",
-                                         "failed_starts", "failure_reward", "lr_drop", "lr_patience",
+                                         "failed_starts", "failure_reward",
                                          "demonstration_starts"}  # runs from before them had none
         if missing:
             raise ConfigError(f"the stored configuration lacks {', '.join(sorted(missing))}")
@@ -200,7 +197,6 @@ def resolve_config(prog, task: Optional[str] = None, *, algo: Optional[str] = No
         demonstration_share=p.demonstration_share, demonstration_repeat=p.demonstration_repeat,
         demonstration_seconds=p.demonstration_budget(time_limit), failed_starts=float(restarts),
         failure_reward=_failure_reward(prog, t, model, hyper, p.failure_forever),
-        lr_drop=float(p.lr_drop), lr_patience=int(p.lr_patience),
         demonstration_starts=float(p.demonstration_starts) if demos else 0.0)
 
 

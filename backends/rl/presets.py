@@ -71,10 +71,6 @@ class Preset:
     demonstration_starts: float = 0.0
     # A failure step earns the reward's floor for every step after it (floor / (1 - gamma)), not once.
     failure_forever: bool = False
-    # The learning rate times ``lr_drop`` once ``lr_patience`` validations in a row have not
-    # improved the score (:mod:`.plateau`; 1: never).
-    lr_drop: float = 1.0
-    lr_patience: int = 5
     # The discount from the task: gamma = 1 - 1 / (horizon * deadline), so that the discount's
     # horizon 1 / (1 - gamma) is this share of the deadline (None: the algos' own gamma).
     horizon: Optional[float] = None

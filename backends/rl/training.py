@@ -31,7 +31,6 @@ from asap_dsl.sampling import task_states
 from .config import ConfigError, TrainConfig, resolve_config
 from .curriculum import failed_starts_env
 from .demonstrations import keep
-from .plateau import PlateauDrop, set_learning_rate
 from .presets import OFF_POLICY, get_preset
 from .engines import Engine, get_engine
 from .exploration import LateDemonstrations, add_late
@@ -189,7 +188,6 @@ class _Session:
                      if cfg.late_demonstrations > 0 else None)
         self.stop = stop if stop is not None else Interrupts()
         self.kept_rows = 0  # the demonstrations' rows of the replay buffer, never overwritten
-        self.plateau = PlateauDrop(cfg.lr_drop, cfg.lr_patience) if cfg.lr_drop != 1.0 else None
         self.time_up = False
         self.last_checkpoint = time.perf_counter()
         self.started = time.perf_counter()
@@ -270,11 +268,6 @@ class _Session:
         better = self.best is None or score >= self.best["score"]  # a tie: the later model, trained longer
         row = {"steps": int(steps), "seconds": round(self.seconds, 3), "score": round(score, 6), "rates": rates,
                "best": int(better), "return": round(float(np.mean(res.returns)), 6)}
-        if self.plateau is not None and self.plateau.seen(score, int(steps)):
-            lr = float(model.learning_rate) * self.plateau.factor
-            set_learning_rate(model, lr)
-            row["learning_rate"] = lr
-            self._tell(f"validation has not improved for {self.plateau.patience} validations: learning rate now {lr:g}")
         self.curves.append(row)
         if better:
             self.best = dict(row)
@@ -297,7 +290,6 @@ class _Session:
                 "curves": self.curves, "late_demonstrations": None if self.late is None else self.late.added,
                 "failed_starts": None if self.curriculum is None else self.curriculum.state(),
                 "demonstration_rows": self.kept_rows,
-                "plateau": None if self.plateau is None else self.plateau.to_dict(),
                 **self.schedule.to_dict()}
 
     def checkpoint(self, model, run: Optional[RunDir] = None) -> None:
@@ -325,8 +317,6 @@ class _Session:
         if self.late is not None:  # added before the checkpoint: never again
             self.late.added = state.get("late_demonstrations")
         self.kept_rows = int(state.get("demonstration_rows") or 0)
-        if self.plateau is not None and state.get("plateau") is not None:
-            self.plateau = PlateauDrop.from_dict(state["plateau"])
         if self.curriculum is not None and state.get("failed_starts") is not None:
             self.curriculum.restore(state["failed_starts"])
         self.seconds_before = float(state["seconds"])
