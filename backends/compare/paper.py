@@ -94,44 +94,37 @@ def readme(results: Path) -> str:
                    f"`{m.get('command') or 'bash scripts/results ' + b}` | {wall} | {m.get('machine') or '—'} |")
     out.append("")
 
-    out += ["## Table 1 — rewards (SAC)", "",
-            "| benchmark | task | within | " + " | ".join(f"{name} paper | ours" for _, name in TABLE1_METHODS)
-            + " | ceiling |", "|---|---|---|" + "---|---|" * len(TABLE1_METHODS) + "---|"]
-    keys = sorted({(c["benchmark"], c["task"], c["within"]) for c in cells if c["table"] == 1},
-                  key=lambda k: (BENCHMARKS.index(k[0]), k[1], -k[2]))
-    for b, task, T in keys:
-        rep = reports[b]
-        col = None if rep is None else _column(rep, b, task)
-        row = [b, TASKS.get(task, task), str(T)]
-        for key, name in TABLE1_METHODS:
-            p = next(c["paper"] for c in cells if c["table"] == 1 and (c["benchmark"], c["task"], c["within"],
-                                                                       c["method"]) == (b, task, T, key))
-            ours = None if col is None else _ours(rep, "table1", f"{key}/sac", col["name"], T)
-            row += [f"{p:.1f}", _cell(ours)]
-            if ours is not None and 100.0 * ours["mean"] < p:
-                below.append(f"Table 1, {b} {TASKS[task]} within {T}, {name}: ours {_cell(ours)} against {p:.1f}")
-        row.append(_ceiling(col, T))
-        out.append("| " + " | ".join(row) + " |")
-    out.append("")
+    def table(number: int, methods: list[tuple[str, str, str]], order) -> None:
+        """One row per (benchmark, task, tolerance) of the paper's table ``number``: for each of
+        ``methods`` (label, our method's key, the paper cell's field and value to match) the
+        paper's cell and ours, then the ceiling."""
+        keys = sorted({(c["benchmark"], c["task"], c["within"]) for c in cells if c["table"] == number}, key=order)
+        for b, task, T in keys:
+            rep = reports[b]
+            col = None if rep is None else _column(rep, b, task)
+            row = [b, TASKS.get(task, task), str(T)]
+            for label, key, (field, value) in methods:
+                p = next(c["paper"] for c in cells if c["table"] == number and c[field] == value
+                         and (c["benchmark"], c["task"], c["within"]) == (b, task, T))
+                ours = None if col is None else _ours(rep, f"table{number}", key, col["name"], T)
+                row += [f"{p:.1f}", _cell(ours)]
+                if ours is not None and 100.0 * ours["mean"] < p:
+                    below.append(f"Table {number}, {b} {TASKS[task]} within {T}, {label}: ours {_cell(ours)} "
+                                 f"against {p:.1f}")
+            row.append(_ceiling(col, T))
+            out.append("| " + " | ".join(row) + " |")
+        out.append("")
 
-    out += ["## Table 2 — algorithms (ASAP-Phi), at the paper's Table 2 tolerance", "",
-            "| benchmark | task | within | " + " | ".join(f"{a.upper()} paper | ours" for a in TABLE2_ALGOS)
-            + " | ceiling |", "|---|---|---|" + "---|---|" * len(TABLE2_ALGOS) + "---|"]
-    keys = sorted({(c["benchmark"], c["task"], c["within"]) for c in cells if c["table"] == 2},
-                  key=lambda k: (BENCHMARKS.index(k[0]), k[1]))
-    for b, task, T in keys:
-        rep = reports[b]
-        col = None if rep is None else _column(rep, b, task)
-        row = [b, TASKS.get(task, task), str(T)]
-        for a in TABLE2_ALGOS:
-            p = next(c["paper"] for c in cells if c["table"] == 2 and (c["benchmark"], c["task"], c["algo"]) == (b, task, a))
-            ours = None if col is None else _ours(rep, "table2", f"asap/{a}", col["name"], T)
-            row += [f"{p:.1f}", _cell(ours)]
-            if ours is not None and 100.0 * ours["mean"] < p:
-                below.append(f"Table 2, {b} {TASKS[task]} within {T}, {a.upper()}: ours {_cell(ours)} against {p:.1f}")
-        row.append(_ceiling(col, T))
-        out.append("| " + " | ".join(row) + " |")
-    out.append("")
+    def header(labels: list[str]) -> list[str]:
+        return ["| benchmark | task | within | " + " | ".join(f"{x} paper | ours" for x in labels) + " | ceiling |",
+                "|---|---|---|" + "---|---|" * len(labels) + "---|"]
+
+    out += ["## Table 1 — rewards (SAC)", ""] + header([name for _, name in TABLE1_METHODS])
+    table(1, [(name, f"{key}/sac", ("method", key)) for key, name in TABLE1_METHODS],
+          lambda k: (BENCHMARKS.index(k[0]), k[1], -k[2]))
+    out += ["## Table 2 — algorithms (ASAP-Phi), at the paper's Table 2 tolerance", ""]
+    out += header([a.upper() for a in TABLE2_ALGOS])
+    table(2, [(a.upper(), f"asap/{a}", ("algo", a)) for a in TABLE2_ALGOS], lambda k: (BENCHMARKS.index(k[0]), k[1]))
 
     missing = [b for b in BENCHMARKS if reports[b] is None]
     out += ["## Where ours is below the paper", ""]
