@@ -43,7 +43,7 @@ from .sampling import initial_states
 from .native import with_engine
 from .sim import build_simulator
 
-__all__ = ["AsapEnv", "AsapVecEnv", "END_REASONS", "EnvCore", "infos", "make_env", "make_vec_env", "register_envs"]
+__all__ = ["AsapEnv", "AsapVecEnv", "END_REASONS", "EnvCore", "core_of", "infos", "make_env", "make_vec_env", "register_envs"]
 
 END_REASONS = (None, "avoid", "out_of_bounds", "non_finite", "time_limit")
 _AVOID, _OOB, _NONFINITE, _TIME = 1, 2, 3, 4
@@ -291,6 +291,14 @@ class EnvCore:
             self.t_reach[done] = np.where(self.asap.sat[done], 0, -1)
             obs = self.obs()
         return obs, reward, failed, truncated, final_obs, done
+
+
+def core_of(venv) -> EnvCore:
+    """The core stepping ``venv``: an :class:`AsapVecEnv`'s, under any stack of stable-baselines3
+    ``VecEnvWrapper`` s (each holds the env it wraps as ``venv``)."""
+    while not hasattr(venv, "core"):
+        venv = venv.venv
+    return venv.core
 
 
 def infos(core: EnvCore) -> list[dict]:

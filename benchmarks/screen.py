@@ -20,7 +20,7 @@ process only, so that an idea can be judged in four minutes before it is built p
 - ``--sbx-class``: sbx's ``CrossQ`` or ``TQC`` in place of SAC (the SAC settings it accepts).
 - ``--lr-drop AT,FACTOR``: after the share AT of the time limit, the learning rate times FACTOR.
 - ``--preset-set NAME=VALUE`` (repeatable): a field of the default preset for this process, to
-  screen a rule that is built but off (``demonstration_starts=0.25``).
+  screen a rule that is built but off (``failed_starts=0.25``, ``demonstration_repeat=2``).
 """
 
 from __future__ import annotations
@@ -38,12 +38,7 @@ import numpy as np
 
 import asap_dsl
 from asap_dsl.backends.rl import presets, training
-
-
-def _core(venv):
-    while not hasattr(venv, "core"):
-        venv = venv.venv
-    return venv.core
+from asap_dsl.env import core_of
 
 
 def patch_learner_env(end_at_reach_gamma: float) -> dict:
@@ -53,7 +48,7 @@ def patch_learner_env(end_at_reach_gamma: float) -> dict:
 
     def step_wait(self):
         obs, reward, done, infos = orig(self)
-        core = _core(self.venv)
+        core = core_of(self.venv)
         newly = np.array([inf.get("t_reach") is not None and inf["t_reach"] == inf.get("t") and inf["t_reach"] > 0
                           and not d for inf, d in zip(infos, done)])
         if newly.any():

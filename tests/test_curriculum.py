@@ -171,38 +171,3 @@ def test_a_failure_earns_the_floor_for_ever_so_that_leaving_never_pays(rail):
     assert info[0]["end_reason"] == "avoid" and rewards[-1] == pytest.approx(cfg.failure_reward, rel=1e-6)
     # no episode that goes on can earn less: every step earns at least the floor
     assert all(r >= floor - 1e-9 for r in rewards[:-1]) and sum(rewards[:-1]) > cfg.failure_reward
-
-
-def test_episodes_start_along_the_demonstrations_at_their_share_and_never_count_as_failed_starts(rail):
-    env = _curriculum_env(rail, 0.0)
-    env.along_share = 1.0
-    env.along = np.array([[0.3], [0.5]])
-    env.reset()
-    for _ in range(45):  # standing still: every episode fails, none from the init box comes back
-        env.step_async(np.zeros((4, 1)))
-        env.step_wait()
-    assert env.along_started >= 4 and env.replayed == 0
-    assert set(np.round(np.asarray(env.core.states)[:, 0], 9)) <= {0.3, 0.5}
-    assert all(abs(p[0]) != 0.3 and abs(p[0]) != 0.5 for p in env.pool)  # only the init box's starts are kept
-    with pytest.raises(ValueError, match="together at most 1"):
-        from asap_dsl.backends.rl.curriculum import failed_starts_env
-        from asap_dsl.env import make_vec_env
-
-        failed_starts_env(make_vec_env(rail, num_envs=2), 0.6, 0, 0.6)
-
-
-def test_the_states_along_the_demonstrations_are_those_the_replay_passed_through(rail):
-    from asap_dsl.backends.rl.demonstrations import add_demonstrations, solve
-    from test_demonstrations import _learner
-
-    model, scaling, wrap = _learner(rail)
-    w = solve(rail, "go", 8, 3, workers=1, cache=False)
-    demos = add_demonstrations(rail, "go", model, wrap, scaling, w)
-    expect = set()
-    for x0, seq in zip(w.starts, w.sequences):
-        x = float(x0[0])
-        for a in seq[:-1]:  # x' = 2u: the states after each step but the last (that one is in the goal)
-            x = x + 0.2 * float(np.clip(a[0], -1, 1))
-            expect.add(round(x, 6))
-    assert demos.along is not None and {round(float(v), 6) for v in demos.along[:, 0]} == expect
-    assert "along" not in demos.to_dict()

@@ -72,7 +72,6 @@ class TrainConfig:
     demonstration_repeat: int = 1
     demonstration_seconds: Optional[float] = None
     failed_starts: float = 0.0  # the share of new episodes started where an earlier one failed (:mod:`.curriculum`)
-    demonstration_starts: float = 0.0  # ... and at a state along a demonstration
     # The learner's reward of a failure step (None: the reward's floor, as the task defines it).
     failure_reward: Optional[float] = None
     # Each state entry's scaling box (init, state or none: asap_dsl.observation); None in runs from
@@ -88,8 +87,7 @@ class TrainConfig:
         data = {"engine": REFERENCE, **data}  # a run from before engines: stable-baselines3 trained it
         missing = names - set(data) - {"time_limit", "demonstrations", "late_demonstrations", "observation_sources",
                                          "demonstration_share", "demonstration_repeat", "demonstration_seconds",
-                                         "failed_starts", "failure_reward",
-                                         "demonstration_starts"}  # runs from before them had none
+                                         "failed_starts", "failure_reward"}  # runs from before them had none
         if missing:
             raise ConfigError(f"the stored configuration lacks {', '.join(sorted(missing))}")
         for f in fields(cls):  # a manifest edited by hand: one sentence, not a crash deep in training
@@ -196,8 +194,7 @@ def resolve_config(prog, task: Optional[str] = None, *, algo: Optional[str] = No
         demonstrations=demos, late_demonstrations=late, observation_sources=sources,
         demonstration_share=p.demonstration_share, demonstration_repeat=p.demonstration_repeat,
         demonstration_seconds=p.demonstration_budget(time_limit), failed_starts=float(restarts),
-        failure_reward=_failure_reward(prog, t, model, hyper, p.failure_forever),
-        demonstration_starts=float(p.demonstration_starts) if demos else 0.0)
+        failure_reward=_failure_reward(prog, t, model, hyper, p.failure_forever))
 
 
 def _hyperparameters(preset: Mapping[str, Any], block: Mapping[str, Any], settings: Optional[Mapping[str, Any]],

@@ -16,20 +16,16 @@ attitude 3–5 points closer to their ceilings than the default without them.
 from __future__ import annotations
 
 import functools
-from typing import Any, Optional
+from typing import Any
 
 import numpy as np
+
+from asap_dsl.env import core_of
 
 __all__ = ["POOL_SIZE", "failed_starts_env"]
 
 #: The failed starts remembered (the latest ones: an old failure may be solved by now).
 POOL_SIZE = 2000
-
-
-def _core(venv):
-    while not hasattr(venv, "core"):
-        venv = venv.venv
-    return venv.core
 
 
 @functools.lru_cache(maxsize=1)
@@ -41,15 +37,10 @@ def _failed_starts_class():
         """A raw vector env of the task (:class:`asap_dsl.env.AsapVecEnv`) whose new episodes start,
         with probability ``share``, at the initial state of an earlier episode that did not reach."""
 
-        def __init__(self, venv, share: float, seed: int, along_share: float = 0.0):
+        def __init__(self, venv, share: float, seed: int):
             super().__init__(venv)
-            self.core = _core(venv)
+            self.core = core_of(venv)
             self.share = float(share)
-            # States along the oracle's demonstrations (set once they are replayed), and the share
-            # of new episodes that start at one of them: a manoeuvre learnt from its end backwards.
-            self.along: Optional[np.ndarray] = None
-            self.along_share = float(along_share)
-            self.along_started = 0
             self.rng = np.random.default_rng([int(seed), 77])
             self.pool: list[np.ndarray] = []
             self.starts = np.array(self.core.states, dtype=np.float64)
@@ -65,58 +56,40 @@ def _failed_starts_class():
             if not done.any():
                 return obs, reward, done, infos
             ended = np.flatnonzero(done)
-            self.pool.extend(self.starts[i].copy() for i in ended
-                             if infos[i].get("t_reach") is None and not np.isnan(self.starts[i]).any())
+            self.pool.extend(self.starts[i].copy() for i in ended if infos[i].get("t_reach") is None)
             del self.pool[:-POOL_SIZE]
             take = np.zeros(len(done), dtype=bool)
-            on_demo = np.zeros(len(done), dtype=bool)
             draws = self.rng.random(len(ended))
-            has_along = self.along is not None and len(self.along) > 0
             for i, u in zip(ended, draws):
-                if has_along and u < self.along_share:
-                    on_demo[i] = True
-                else:
-                    u = u - self.along_share if has_along else u
-                    take[i] = bool(self.pool) and u < self.share and take.sum() < len(self.pool)
-            if take.any() or on_demo.any():
+                take[i] = bool(self.pool) and u < self.share and take.sum() < len(self.pool)
+            if take.any():
                 cand = np.array(self.core.states, dtype=np.float64)
                 for i in np.flatnonzero(take):
                     cand[i] = self.pool.pop(int(self.rng.integers(len(self.pool))))
-                for i in np.flatnonzero(on_demo):
-                    cand[i] = self.along[int(self.rng.integers(len(self.along)))]
-                both = take | on_demo
                 obs = np.array(obs)
-                obs[both] = self.core.restart(both, cand)
+                obs[take] = self.core.restart(take, cand)
                 self.replayed += int(take.sum())
-                self.along_started += int(on_demo.sum())
             self.starts[ended] = np.asarray(self.core.states)[ended]
-            self.starts[on_demo] = np.nan  # not a start of the task's: never a failed start
             return obs, reward, done, infos
 
         def state(self) -> dict[str, Any]:
             """What a checkpoint keeps, so that a resumed run draws as the uninterrupted one."""
             return {"rng": self.rng.bit_generator.state, "pool": [p.tolist() for p in self.pool],
-                    "starts": self.starts.tolist(), "replayed": self.replayed,
-                    "along": None if self.along is None else self.along.tolist(), "along_started": self.along_started}
+                    "starts": self.starts.tolist(), "replayed": self.replayed}
 
         def restore(self, state: dict[str, Any]) -> None:
             self.rng.bit_generator.state = state["rng"]
             self.pool = [np.asarray(p, dtype=np.float64) for p in state["pool"]]
             self.starts = np.asarray(state["starts"], dtype=np.float64)
             self.replayed = int(state["replayed"])
-            self.along = None if state.get("along") is None else np.asarray(state["along"], dtype=np.float64)
-            self.along_started = int(state.get("along_started", 0))
 
     return FailedStarts
 
 
-def failed_starts_env(venv, share: float, seed: int, along_share: float = 0.0):
+def failed_starts_env(venv, share: float, seed: int):
     """``venv`` (a raw vector env of the task) with the failed-starts curriculum: each new episode
     starts, with probability ``share`` in [0, 1], at the initial state of an earlier episode that
-    did not reach ``asap``, and (once the env's ``along`` holds the states along the oracle's
-    demonstrations) with probability ``along_share`` at one of those. The rest of the learner's
-    wrappers go around it."""
-    if not (0.0 <= share <= 1.0 and 0.0 <= along_share <= 1.0 and share + along_share <= 1.0):
-        raise ValueError(f"the shares of failed starts and demonstration starts must be in [0, 1], together at "
-                         f"most 1; got {share} and {along_share}")
-    return _failed_starts_class()(venv, share, seed, along_share)
+    did not reach ``asap``. The rest of the learner's wrappers go around it."""
+    if not 0.0 <= share <= 1.0:
+        raise ValueError(f"the share of failed starts must be in [0, 1]; got {share}")
+    return _failed_starts_class()(venv, share, seed)

@@ -20,7 +20,7 @@ from __future__ import annotations
 import functools
 import sys
 import time
-from dataclasses import asdict, dataclass, field, replace
+from dataclasses import asdict, dataclass, replace
 from typing import Any, Callable, Optional
 
 import numpy as np
@@ -69,8 +69,6 @@ class Demonstrations:
     added: int = 0
     transitions: int = 0
     rows: int = 0  # the replay buffer's rows they fill (from its first): kept for the whole run (:func:`keep`)
-    # The true states along the stored sequences after their first (not in the manifest: see ``to_dict``).
-    along: Optional[np.ndarray] = field(default=None, repr=False, compare=False)
     oracle_seconds: float = 0.0
     seconds: float = 0.0
     seed: Optional[int] = None
@@ -78,9 +76,7 @@ class Demonstrations:
     cached: bool = False  # the oracle's sequences were read back from the cache (its seconds charged all the same)
 
     def to_dict(self) -> dict:
-        out = asdict(self)
-        out.pop("along", None)
-        return out
+        return asdict(self)
 
     def text(self) -> str:
         """One line for the training log."""
@@ -97,8 +93,7 @@ class Demonstrations:
 class Transitions:
     """Transitions as the learner's replay buffer takes them, one row each: observations and next
     observations as the policy sees them, the buffer's actions (in [-1, 1]), the env's rewards,
-    ``dones`` and ``timeouts`` (SB3's ``TimeLimit.truncated``); ``states``, the true state at each
-    observation, and ``step``, its step within its sequence (0: the initial state)."""
+    ``dones`` and ``timeouts`` (SB3's ``TimeLimit.truncated``)."""
 
     obs: np.ndarray
     next_obs: np.ndarray
@@ -106,8 +101,6 @@ class Transitions:
     rewards: np.ndarray
     dones: np.ndarray
     timeouts: np.ndarray
-    states: Optional[np.ndarray] = None
-    step: Optional[np.ndarray] = None
 
     def __len__(self) -> int:
         return len(self.rewards)
@@ -167,14 +160,13 @@ def replay(prog, task: str, reward: Any, wrap: Callable, policy_action: Callable
         acts = np.tile(centre, (B, 1))  # entries past their sequence act too (the batch steps together)
         for i in np.flatnonzero(alive):
             acts[i] = policy_action(np.asarray(sequences[i][t], float).reshape(1, m))[0]
-        before = np.array(raw.core.states, dtype=np.float64)
         env.step_async(acts)
         new_obs, rew, done, infos = env.step_wait()
         for i in np.flatnonzero(alive):
             info = infos[i]
             nxt = info["terminal_observation"] if done[i] else new_obs[i]
             rows[i].append((obs[i].copy(), np.array(nxt, np.float32), buffer_action(acts[i:i + 1])[0], float(rew[i]),
-                            bool(done[i]), bool(info.get("TimeLimit.truncated", False)), before[i], t))
+                            bool(done[i]), bool(info.get("TimeLimit.truncated", False))))
             failed = done[i] and info.get("end_reason") != "time_limit"
             if failed:
                 alive[i] = False
@@ -187,13 +179,11 @@ def replay(prog, task: str, reward: Any, wrap: Callable, policy_action: Callable
     if not kept:
         z = np.zeros((0, n_obs), np.float32)
         return Transitions(z, z.copy(), np.zeros((0, n_act), np.float32), np.zeros(0, np.float32),
-                           np.zeros(0, bool), np.zeros(0, bool), np.zeros((0, raw.core.n)),
-                           np.zeros(0, np.int64)), reached
+                           np.zeros(0, bool), np.zeros(0, bool)), reached
     cols = list(zip(*kept))
     return Transitions(np.stack(cols[0]).astype(np.float32), np.stack(cols[1]).astype(np.float32),
                        np.stack(cols[2]).astype(np.float32), np.asarray(cols[3], np.float32),
-                       np.asarray(cols[4], bool), np.asarray(cols[5], bool), np.stack(cols[6]),
-                       np.asarray(cols[7], np.int64)), reached
+                       np.asarray(cols[4], bool), np.asarray(cols[5], bool)), reached
 
 
 def store(replay_buffer, tr: Transitions) -> int:
@@ -375,7 +365,6 @@ def add_demonstrations(prog, task: str, model, wrap: Callable, scaling, witnesse
         return Demonstrations(states=w.states, seed=w.seed, oracle_seconds=w.oracle_seconds,
                               seconds=w.oracle_seconds, reason=w.reason)
     added = stored = rows = 0
-    along = None
     if w.sequences:
         def buffer_action(u: np.ndarray) -> np.ndarray:  # as SB3's _sample_action stores it
             return np.clip(model.policy.scale_action(u), -1.0, 1.0)
@@ -384,8 +373,7 @@ def add_demonstrations(prog, task: str, model, wrap: Callable, scaling, witnesse
                              w.lengths, failure_reward)
         added, stored = int(reached.sum()), len(tr)
         rows = store(model.replay_buffer, tr) // model.replay_buffer.n_envs
-        along = np.unique(tr.states[tr.step > 0], axis=0) if len(tr) else None
     return Demonstrations(states=w.states, solved=int(w.solved), replays=len(w.sequences), added=added,
-                          transitions=stored, rows=rows, cached=w.cached, along=along,
+                          transitions=stored, rows=rows, cached=w.cached,
                           oracle_seconds=w.oracle_seconds, seconds=w.oracle_seconds + time.perf_counter() - start,
                           seed=w.seed)

@@ -65,10 +65,8 @@ class Preset:
     demonstration_steps: int = 1
     demonstration_seconds: Optional[float] = None
     demonstration_time_share: float = 1.0
-    # The share of new training episodes that start where an earlier one failed (:mod:`.curriculum`),
-    # and the share that start at a state along one of the demonstrations.
+    # The share of new training episodes that start where an earlier one failed (:mod:`.curriculum`).
     failed_starts: float = 0.0
-    demonstration_starts: float = 0.0
     # A failure step earns the reward's floor for every step after it (floor / (1 - gamma)), not once.
     failure_forever: bool = False
     # The discount from the task: gamma = 1 - 1 / (horizon * deadline), so that the discount's

@@ -172,8 +172,8 @@ class _Session:
         self.raw_env = make_vec_env(prog, cfg.task, num_envs=cfg.n_envs, seed=cfg.seed, reward=cfg.reward,
                                     failure_reward=cfg.failure_reward)
         # The failed-starts curriculum (:mod:`.curriculum`) is the learner's alone: not the replays'.
-        self.curriculum = (failed_starts_env(self.raw_env, cfg.failed_starts, cfg.seed, cfg.demonstration_starts)
-                           if cfg.failed_starts > 0 or cfg.demonstration_starts > 0 else None)
+        self.curriculum = (failed_starts_env(self.raw_env, cfg.failed_starts, cfg.seed)
+                           if cfg.failed_starts > 0 else None)
         self.env = self.learner_env(self.raw_env if self.curriculum is None else self.curriculum)
         val_states = task_states(prog.system, self.task, cfg.validation_episodes, seed=cfg.validation_seed)
         self.validator = Evaluator(prog, cfg.task, val_states, reward=cfg.reward)
@@ -234,8 +234,6 @@ class _Session:
                                    reward=self.cfg.reward, failure_reward=self.cfg.failure_reward)
         self.seconds_before += demos.seconds
         self.kept_rows = demos.rows
-        if self.curriculum is not None:
-            self.curriculum.along = demos.along
         self.started = time.perf_counter()  # what came before is counted in the line above
         if self.cfg.time_limit is not None:  # validations on the clock: spread over the time left
             self.schedule.restart_clock(self.seconds_before, max(0.0, self.cfg.time_limit - self.seconds_before),
