@@ -53,6 +53,9 @@ def fill_compare_subparser(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--ray-timeout", type=positive_amount("seconds"), default=30.0, metavar="SECONDS",
                    help="give up joining the Ray cluster after this long (default 30)")
     p.add_argument("--out", default="reports/compare", help="the report and its runs (default reports/compare)")
+    p.add_argument("--summaries", metavar="DIR",
+                   help="keep each finished run's summary (manifest, spec, evaluation, curves) in DIR and read "
+                        "them back before training: a sweep whose runs directory is lost goes on from DIR")
     p.add_argument("--quiet", action="store_true", help="no progress display")
     p.set_defaults(func=compare_command)
     return p
@@ -170,7 +173,7 @@ def compare_command(args: argparse.Namespace, out: Optional[TextIO] = None, err:
                           steps=args.steps, preset=args.preset, workers=n_workers, ray=args.ray, out=args.out,
                           episodes=args.episodes, on_event=progress, oracle_workers=available_cores(),
                           ray_timeout=args.ray_timeout, engine=args.engine, table2_tolerances=args.table2_tolerances,
-                          on_oracle=progress.oracle if progress else None)
+                          on_oracle=progress.oracle if progress else None, summaries=args.summaries)
         finally:  # the bar stops before anything else is printed
             if progress:
                 progress.close()

@@ -18,6 +18,7 @@ from asap_dsl.rollout import Evaluator
 from asap_dsl.processes import Interrupts
 from asap_dsl.runfiles import command_line, lock_dir, shown, writing
 from asap_dsl.runs import RunError, atomic_write_json, json_safe, package_versions, spec_hash
+from asap_dsl.runsummary import restore_summaries, save_summary
 from asap_dsl.sampling import EVAL_SEED, task_states
 
 from . import phase_plots, plots
@@ -78,6 +79,9 @@ def _run_evaluation(result: dict, episodes: int, oracle) -> dict:
 
     ev = result["evaluation"]
     if not (ev.get("episodes") == episodes and ev.get("seed") == EVAL_SEED and "per_state" in ev):
+        if not result.get("model", True):
+            raise RunError(f"its summary's evaluation is on {ev.get('episodes')} states of seed {ev.get('seed')}, "
+                           f"not {episodes} of seed {EVAL_SEED}, and its model was not kept: train it again")
         from ..rl.evaluation import evaluate
 
         ev = json.loads(json.dumps(json_safe(evaluate(result["run_dir"], episodes=episodes, oracle="cache",
@@ -124,14 +128,18 @@ def compare(specs: Sequence[str], *, tasks: Optional[Sequence[str]] = None,
             on_event: Optional[Callable[[str, Job, Optional[dict]], None]] = None,
             oracle_workers: Optional[int] = None, ray_timeout: float = 30.0,
             engine: Optional[str] = None, table2_tolerances: Sequence[int] = (),
-            on_oracle: Optional[Callable[[str, int, int], None]] = None) -> CompareResult:
+            on_oracle: Optional[Callable[[str, int, int], None]] = None,
+            summaries: Optional[str] = None) -> CompareResult:
     """Train what is missing, evaluate everything on the same states, write the report.
     ``engine`` (sbx or sb3) trains every run; None: the preset's engine where it has the algorithm.
     ``table2_tolerances``: Table 2 within these steps too, beside every tolerance of the spec (the
     paper's Table 2 tolerance: 30 DC motor, 20 bicycle and attitude, 50 swimmer); each at most
     every task's deadline (:func:`check_tolerances`, ``ValueError``). ``on_oracle(column, solved,
     states)`` is told when the oracle starts computing a column's minima (solved 0: they were not
-    cached; minutes for a thousand states) and when it has them all.
+    cached; minutes for a thousand states) and when it has them all. ``summaries``: a directory of
+    run summaries (:mod:`asap_dsl.runsummary`) copied into the runs before the sweep plans (read
+    back, not trained) and written there as each run finishes, the model only of the run the
+    report draws its examples from: a sweep that outlives its machine, its summaries committed.
 
     Holds ``out``'s exclusive lock throughout (a second compare on it is refused, naming the
     first). Runs that cannot be used (failed, damaged) are left out of the tables, named in the
@@ -156,12 +164,28 @@ def compare(specs: Sequence[str], *, tasks: Optional[Sequence[str]] = None,
         try:
             return _compare(specs, tasks, rewards, algos, seeds, steps, preset, workers, ray, out_dir, episodes,
                             on_event, oracle_workers, ray_timeout, start, phase, results, engine,
-                            sorted({int(T) for T in table2_tolerances}, reverse=True), on_oracle)
+                            sorted({int(T) for T in table2_tolerances}, reverse=True), on_oracle, summaries)
         except KeyboardInterrupt:
             raise SweepInterrupted(results, phase[0]) from None
         except SweepInterrupted as err:
             err.phase = phase[0]
             raise
+
+
+def _keeping_summaries(on_event, summaries: str, algo: str, reward: str, errors: list):
+    """``on_event`` that also writes each finished run's summary into ``summaries`` (the model of
+    seed 0 of ``reward`` with ``algo``: the report's example trajectories); a summary that cannot be
+    written is said in ``errors`` (the report's notes), the sweep goes on."""
+    def told(kind: str, job: Optional[Job], result: Optional[dict]) -> None:
+        if kind == "done" and result and result.get("status") == "finished" and result.get("model", True):
+            try:
+                save_summary(result["run_dir"], summaries,
+                             model=job.algo == algo and job.reward == reward and job.seed == 0)
+            except RunError as err:
+                errors.append(str(err))
+        if on_event is not None:
+            on_event(kind, job, result)
+    return told
 
 
 def _status(result: dict) -> str:
@@ -221,12 +245,16 @@ def column_labels(specs: Sequence[str]) -> dict[str, str]:
 
 def _compare(specs, tasks, rewards, algos, seeds, steps, preset, workers, ray, out_dir: Path, episodes, on_event,
              oracle_workers, ray_timeout, start, phase: list, results: list, engine=None,
-             table2_tolerances: Sequence[int] = (), on_oracle=None) -> CompareResult:
+             table2_tolerances: Sequence[int] = (), on_oracle=None, summaries: Optional[str] = None) -> CompareResult:
     import asap_dsl
 
     jobs = plan(specs, tasks, list(rewards), list(algos), seeds, preset, steps, engine)
     labels = column_labels(sorted({j.spec for j in jobs}))
     phase[0] = "training"
+    kept_errors: list[str] = []
+    if summaries is not None:
+        restore_summaries(summaries, out_dir / "runs")
+        on_event = _keeping_summaries(on_event, summaries, algos[0], rewards[0], kept_errors)
     results[:] = execute(jobs, str(out_dir / "runs"), workers=workers, ray_address=ray, on_event=on_event,
                          ray_timeout=ray_timeout)
     phase[0] = "the evaluations"
@@ -247,6 +275,7 @@ def _compare(specs, tasks, rewards, algos, seeds, steps, preset, workers, ray, o
         except RunError as err:
             failed.append({"run": what(r), "run_dir": r.get("run_dir"), "error": str(err)})
     notes += [f"{f['run']}: not used ({f['error']})" for f in failed]
+    notes += [f"summary not kept: {e}" for e in kept_errors]
     notes += [f"{what(r)}: training curves left out ({r['curves_error']})" for r in loaded if r.get("curves_error")]
 
     columns: list[Column] = []
@@ -296,14 +325,19 @@ def _compare(specs, tasks, rewards, algos, seeds, steps, preset, workers, ray, o
         mine = [r for r in loaded if (r["job"]["spec"], r["job"]["task"]) == key]
         for r in sorted(mine, key=lambda r: r["job"]["seed"]):
             j = r["job"]
-            ev = _run_evaluation(r, episodes, oracle)
+            try:
+                ev = _run_evaluation(r, episodes, oracle)
+            except RunError as err:  # a summary evaluated on other states: nothing to evaluate again
+                notes.append(f"{what(r)}: not used ({err})")
+                continue
             if j["algo"] == algos[0] and j["reward"] in table1:
                 table1[j["reward"]].evaluations.setdefault(col.name, []).append(ev)
             if j["reward"] == rewards[0] and j["algo"] in table2:
                 table2[j["algo"]].evaluations.setdefault(col.name, []).append(ev)
             curves.setdefault(col.name, []).append((f"{REWARD_NAMES.get(j['reward'], j['reward'])} ({j['algo']})",
                                                     r["curves"]))
-        first = [r for r in mine if r["job"]["algo"] == algos[0] and r["job"]["reward"] == rewards[0]]
+        first = [r for r in mine if r["job"]["algo"] == algos[0] and r["job"]["reward"] == rewards[0]
+                 and r.get("model", True)]
         if first:
             examples[col.name] = _examples(prog, job.task, sorted(first, key=lambda r: r["job"]["seed"])[0], oracle,
                                            states, col.name)

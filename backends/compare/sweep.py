@@ -27,6 +27,7 @@ from typing import Any, Callable, Optional, Sequence
 
 from asap_dsl.processes import Interrupts
 from asap_dsl.runs import RunBusy, RunDir, RunError, default_run_name, spec_hash
+from asap_dsl.runsummary import is_summary
 
 __all__ = ["Job", "JobResult", "SweepInterrupted", "execute", "job_config", "job_dir", "load_result", "plan",
            "run_job"]
@@ -101,6 +102,7 @@ class JobResult:
     error: Optional[str] = None
     note: Optional[str] = None  # what happened on the way (a damaged run trained again)
     resumed: bool = False       # trained now from the checkpoint an interrupted sweep left
+    model: bool = True          # False: read back from its summary, without its model (:mod:`asap_dsl.runsummary`)
 
     def to_dict(self) -> dict:
         d = asdict(self)
@@ -109,8 +111,9 @@ class JobResult:
 
 
 def _state(run: RunDir) -> str:
-    """``missing``, ``finished`` (model and evaluation check out), ``resumable`` or ``broken``
-    (a damaged manifest: trained again). Read under the run's shared lock."""
+    """``missing``, ``finished`` (model and evaluation check out), ``summary`` (finished, its
+    model left out: :mod:`asap_dsl.runsummary`; its evaluation checks out), ``resumable`` or
+    ``broken`` (a damaged manifest: trained again). Read under the run's shared lock."""
     if not run.path.exists() or (run.path.is_dir() and not any(e != ".lock" for e in os.listdir(run.path))):
         return "missing"
     with run.acquire(exclusive=False):
@@ -120,9 +123,11 @@ def _state(run: RunDir) -> str:
             return "broken"
         if manifest["status"] == "finished":
             try:
-                run.model_file(manifest)
+                summary = is_summary(run, manifest) and not run.checkpoint_dir.exists()
+                if not summary:
+                    run.model_file(manifest)
                 run.read_eval(manifest)
-                return "finished"
+                return "summary" if summary else "finished"
             except RunError:
                 pass
     return "resumable"
@@ -148,7 +153,7 @@ def run_job(job: Job, runs_dir: str, threads: int = 1) -> dict:
         run = RunDir(path)
         state = _state(run)
         trained, note, resumed = False, None, state == "resumable"
-        if state != "finished":
+        if state not in ("finished", "summary"):
             kw = dict(algo=job.algo, reward=job.reward, steps=job.steps, seed=job.seed, preset=job.preset,
                       engine=job.engine, out=path)
             try:
@@ -169,7 +174,7 @@ def run_job(job: Job, runs_dir: str, threads: int = 1) -> dict:
             manifest = run.read_manifest()
             run.read_eval(manifest)
         return JobResult(job, path, "finished", float(manifest["seconds"]), int(manifest["steps_done"]), trained,
-                         note=note, resumed=trained and resumed).to_dict()
+                         note=note, resumed=trained and resumed, model=state != "summary").to_dict()
     except KeyboardInterrupt:  # stopped before its training began (nothing of it was created)
         return JobResult(job, path, "interrupted").to_dict()
     except (RunError, asap_dsl.SpecError, ValueError, KeyError) as err:

@@ -1,0 +1,85 @@
+"""Run summaries (``asapc compare --summaries DIR``): a sweep whose runs directory is lost goes on
+from the summaries it kept, reading its finished runs back instead of training them again."""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from asap_dsl.runs import RunDir, RunError
+from asap_dsl.runsummary import SUMMARY_FILES, is_summary, restore_summaries, save_summary
+
+# 1000 evaluation states: the runs' own, so that a summary's evaluation is the sweep's
+FLAGS = ["--rewards", "asap,rho", "--seeds", "1", "--steps", "400", "--episodes", "1000", "--workers", "2", "--quiet"]
+
+
+def _sweep(spec, out, summaries, *extra):
+    cmd = [sys.executable, "-m", "asap_dsl.cli", "compare", str(spec), "--out", str(out), "--summaries",
+           str(summaries), *FLAGS, *extra]
+    return subprocess.run(cmd, capture_output=True, text=True, timeout=600, env=dict(os.environ))
+
+
+def _table1(report: Path) -> str:
+    return (report / "report.md").read_text().split("## Table 1 — rewards", 1)[1].split("\n## ", 1)[0]
+
+
+def test_a_lost_runs_directory_is_read_back_from_its_summaries_not_trained_again(tiny, tmp_path):
+    summaries = tmp_path / "kept"
+    first = _sweep(tiny, tmp_path / "a", summaries)
+    assert first.returncode == 0, first.stderr
+    kept = sorted(p.name for p in summaries.iterdir())
+    assert len(kept) == 2 and kept == sorted(p.name for p in (tmp_path / "a" / "runs").iterdir() if p.is_dir())
+    example = next(k for k in kept if "-asap-s0-" in k)
+    for name in kept:  # the four small files; the model only of the report's example run
+        files = {p.name for p in (summaries / name).iterdir()}
+        assert files == set(SUMMARY_FILES) | ({"model.zip"} if name == example else set()), (name, files)
+
+    # another machine: a new --out, only the summaries come along
+    second = _sweep(tiny, tmp_path / "b", summaries)
+    assert second.returncode == 0, second.stderr
+    jobs = json.loads((tmp_path / "b" / "sweep.json").read_text())["jobs"]
+    assert len(jobs) == 2 and not any(j["trained_now"] for j in jobs)
+    assert {j["run_dir"].rsplit("/", 1)[1]: j["model"] for j in jobs} == {k: k == example for k in kept}
+    assert _table1(tmp_path / "b") == _table1(tmp_path / "a")  # the same evaluations, the same table
+    assert (tmp_path / "b" / "plots" / "state_space.png").is_file()  # drawn from the kept model
+    runs = (tmp_path / "b" / "report.md").read_text().split("## What was run")[1]
+    assert runs.count("| reused |") == 2
+
+
+def test_a_summary_is_refused_for_an_unfinished_run_and_never_overwrites_a_run(tiny, tmp_path):
+    first = _sweep(tiny, tmp_path / "a", tmp_path / "kept")
+    assert first.returncode == 0, first.stderr
+    run = next(p for p in (tmp_path / "a" / "runs").iterdir() if p.is_dir())
+    manifest = json.loads((run / "run.json").read_text())
+    # a summary without its model: reportable, its evaluation checked against the model's record
+    bare = tmp_path / "bare"
+    save_summary(run, bare)
+    copy = RunDir(bare / run.name)
+    assert is_summary(copy, copy.read_manifest()) and copy.read_eval()["model_sha256"] == manifest["model"]["sha256"]
+    with pytest.raises(RunError, match="not the model this run wrote"):
+        copy.model_file()
+    # a changed evaluation is refused when read back
+    ev = json.loads(copy.eval_path.read_text())
+    ev["model_sha256"] = "0" * 64
+    copy.eval_path.write_text(json.dumps(ev))
+    with pytest.raises(RunError):
+        copy.read_eval()
+    # a run that is not finished has no summary
+    (run / "run.json").write_text(json.dumps({**manifest, "status": "interrupted"}))
+    with pytest.raises(RunError, match="not finished"):
+        save_summary(run, tmp_path / "other")
+    assert not (tmp_path / "other" / run.name).exists()
+    # restoring never touches a run that is there
+    (run / "run.json").write_text(json.dumps(manifest))
+    before = (run / "run.json").read_text()
+    assert restore_summaries(tmp_path / "kept", tmp_path / "a" / "runs") == []
+    assert (run / "run.json").read_text() == before and (run / "model.zip").is_file()
+    assert restore_summaries(tmp_path / "missing", tmp_path / "a" / "runs") == []
+    shutil.rmtree(tmp_path / "a" / "runs")
+    assert len(restore_summaries(tmp_path / "kept", tmp_path / "a" / "runs")) == 2
