@@ -59,11 +59,12 @@ CHECKPOINT = "checkpoint"
 CURVES = "curves.csv"
 EVAL = "eval.json"
 TENSORBOARD = "tb"
+EXAMPLES = "examples.json"  # a run summary's recorded example actions (asap_dsl.runsummary)
 
 PathLike = Union[str, os.PathLike]
 Writer = Callable[[Path], None]
 
-_FILES = (MANIFEST, SPEC_COPY, MODEL, CURVES, EVAL)
+_FILES = (MANIFEST, SPEC_COPY, MODEL, CURVES, EVAL, EXAMPLES)
 # The names a run directory may hold: its files, their temporaries, checkpoint stages, the lock.
 _RUN_ENTRY = re.compile(r"^(?:%s|%s|%s|\.lock|checkpoint\.(?:new|old)|\.(?:%s)\..+\.tmp(?:\.\w+)?)$" % (
     "|".join(map(re.escape, _FILES)), CHECKPOINT, TENSORBOARD, "|".join(map(re.escape, _FILES))))

@@ -17,8 +17,8 @@ import numpy as np
 from asap_dsl.rollout import Evaluator
 from asap_dsl.processes import Interrupts
 from asap_dsl.runfiles import command_line, lock_dir, shown, writing
-from asap_dsl.runs import RunError, atomic_write_json, json_safe, package_versions, spec_hash
-from asap_dsl.runsummary import restore_summaries, save_summary
+from asap_dsl.runs import RunDir, RunError, atomic_write_json, json_safe, package_versions, spec_hash
+from asap_dsl.runsummary import read_examples, restore_summaries, save_summary
 from asap_dsl.sampling import EVAL_SEED, task_states
 
 from . import phase_plots, plots
@@ -92,18 +92,53 @@ def _run_evaluation(result: dict, episodes: int, oracle) -> dict:
     return ev
 
 
-def _examples(prog, task: str, result: dict, oracle, states: np.ndarray, title: str, n: int = 4) -> Optional[dict]:
+#: The example episodes of a report: its first this many evaluation states.
+EXAMPLE_STATES = 4
+
+
+def _policy_controller(result: dict):
+    """The run's policy, or (a summary without its model) its recorded example actions replayed;
+    None when it has neither."""
+    from ..rl.evaluation import load_run
+    from .controllers import OracleController
+
+    if result.get("model", True):
+        return load_run(result["run_dir"]).controller()
+    run = RunDir(result["run_dir"])
+    with run.acquire(exclusive=False):
+        recorded = read_examples(run, run.read_manifest())
+    if recorded is None:
+        return None
+    states, actions = recorded
+    return OracleController(states, actions, actions[0].shape[1] if actions else 0)
+
+
+def _recorded_examples(result: dict, episodes: int) -> dict:
+    """The run's policy rolled out from the report's example states, its actions recorded (what a
+    summary keeps in place of the model)."""
+    from ..rl.evaluation import load_run
+
+    loaded = load_run(result["run_dir"])
+    prog, task = loaded.program, loaded.config.task
+    states = task_states(prog.system, prog.task(task).model, episodes, seed=EVAL_SEED)[:EXAMPLE_STATES]
+    res = Evaluator(prog, task, states).run(loaded.controller(), record=True)
+    return {"states": states, "actions": res.actions}
+
+
+def _examples(prog, task: str, result: dict, oracle, states: np.ndarray, title: str,
+              n: int = EXAMPLE_STATES) -> Optional[dict]:
     """``n`` example episodes of the run's policy and of the oracle's replayed sequences from the
     first ``n`` of the sweep's states (the oracle's own, so that its sequences are found): the
     robustness of ``asap`` along them, and the paths in the state space (``phase``)."""
-    from ..rl.evaluation import load_run
     from .phase_plots import example
 
-    loaded = load_run(result["run_dir"])
+    controller = _policy_controller(result)
+    if controller is None:
+        return None
     asap = prog.task(task).asap
     j = result["job"]
     label = f"{REWARD_NAMES.get(j['reward'], j['reward'])} ({j['algo']})"
-    phase, res, ores = example(prog, task, states[:n], loaded.controller(), oracle, title=title, label=label)
+    phase, res, ores = example(prog, task, states[:n], controller, oracle, title=title, label=label)
 
     def reached(res):
         return [bool(np.isfinite(t)) for t in res.t_reach]
@@ -172,15 +207,16 @@ def compare(specs: Sequence[str], *, tasks: Optional[Sequence[str]] = None,
             raise
 
 
-def _keeping_summaries(on_event, summaries: str, algo: str, reward: str, errors: list):
-    """``on_event`` that also writes each finished run's summary into ``summaries`` (the model of
-    seed 0 of ``reward`` with ``algo``: the report's example trajectories); a summary that cannot be
-    written is said in ``errors`` (the report's notes), the sweep goes on."""
+def _keeping_summaries(on_event, summaries: str, algo: str, reward: str, episodes: int, errors: list):
+    """``on_event`` that also writes each finished run's summary into ``summaries`` (for seed 0 of
+    ``reward`` with ``algo``, the report's example run, with its policy's recorded examples); a
+    summary that cannot be written is said in ``errors`` (the report's notes), the sweep goes on."""
     def told(kind: str, job: Optional[Job], result: Optional[dict]) -> None:
         if kind == "done" and result and result.get("status") == "finished" and result.get("model", True):
             try:
+                example = job.algo == algo and job.reward == reward and job.seed == 0
                 save_summary(result["run_dir"], summaries,
-                             model=job.algo == algo and job.reward == reward and job.seed == 0)
+                             examples=_recorded_examples(result, episodes) if example else None)
             except RunError as err:
                 errors.append(str(err))
         if on_event is not None:
@@ -254,7 +290,7 @@ def _compare(specs, tasks, rewards, algos, seeds, steps, preset, workers, ray, o
     kept_errors: list[str] = []
     if summaries is not None:
         restore_summaries(summaries, out_dir / "runs")
-        on_event = _keeping_summaries(on_event, summaries, algos[0], rewards[0], kept_errors)
+        on_event = _keeping_summaries(on_event, summaries, algos[0], rewards[0], episodes, kept_errors)
     results[:] = execute(jobs, str(out_dir / "runs"), workers=workers, ray_address=ray, on_event=on_event,
                          ray_timeout=ray_timeout)
     phase[0] = "the evaluations"
@@ -336,11 +372,12 @@ def _compare(specs, tasks, rewards, algos, seeds, steps, preset, workers, ray, o
                 table2[j["algo"]].evaluations.setdefault(col.name, []).append(ev)
             curves.setdefault(col.name, []).append((f"{REWARD_NAMES.get(j['reward'], j['reward'])} ({j['algo']})",
                                                     r["curves"]))
-        first = [r for r in mine if r["job"]["algo"] == algos[0] and r["job"]["reward"] == rewards[0]
-                 and r.get("model", True)]
-        if first:
-            examples[col.name] = _examples(prog, job.task, sorted(first, key=lambda r: r["job"]["seed"])[0], oracle,
-                                           states, col.name)
+        first = [r for r in mine if r["job"]["algo"] == algos[0] and r["job"]["reward"] == rewards[0]]
+        for r in sorted(first, key=lambda r: r["job"]["seed"]):  # the first with a policy or its recorded examples
+            ex = _examples(prog, job.task, r, oracle, states, col.name)
+            if ex is not None:
+                examples[col.name] = ex
+                break
 
     replay.label = f"{references(columns)}, replayed"
     t1 = list(table1.values()) + [greedy]
