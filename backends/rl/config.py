@@ -41,6 +41,10 @@ _TYPE_WORDS = {"str": "a text", "int": "a whole number", "bool": "true or false"
                "float": "a number",
                "Optional[float]": "a number or null", "Optional[dict[str, str]]": "an object or null"}
 
+# Fields added after sweeps were made, with the value that means "off": left out of a run's key
+# (:attr:`TrainConfig.key`) while off, so that a finished run is still found by a sweep.
+_KEY_WHEN_SET = {"plateau": None}
+
 
 @dataclass
 class TrainConfig:
@@ -72,6 +76,7 @@ class TrainConfig:
     demonstration_repeat: int = 1
     demonstration_seconds: Optional[float] = None
     failed_starts: float = 0.0  # the share of new episodes started where an earlier one failed (:mod:`.curriculum`)
+    plateau: Optional[float] = None  # the run ends once this latest share of its steps brought validation nothing
     # The learner's reward of a failure step (None: the reward's floor, as the task defines it).
     failure_reward: Optional[float] = None
     # Each state entry's scaling box (init, state or none: asap_dsl.observation); None in runs from
@@ -87,7 +92,7 @@ class TrainConfig:
         data = {"engine": REFERENCE, **data}  # a run from before engines: stable-baselines3 trained it
         missing = names - set(data) - {"time_limit", "demonstrations", "late_demonstrations", "observation_sources",
                                          "demonstration_share", "demonstration_repeat", "demonstration_seconds",
-                                         "failed_starts", "failure_reward"}  # runs from before them had none
+                                         "failed_starts", "failure_reward", *_KEY_WHEN_SET}  # runs from before them had none
         if missing:
             raise ConfigError(f"the stored configuration lacks {', '.join(sorted(missing))}")
         for f in fields(cls):  # a manifest edited by hand: one sentence, not a crash deep in training
@@ -105,6 +110,9 @@ class TrainConfig:
         d.pop("validate_every", None)
         d.pop("time_limit", None)
         d.pop("demonstration_seconds", None)  # follows from the time limit
+        for name, off in _KEY_WHEN_SET.items():  # a rule added since: runs without it keep their key
+            if d.get(name) == off:
+                d.pop(name, None)
         return d
 
 
@@ -194,7 +202,7 @@ def resolve_config(prog, task: Optional[str] = None, *, algo: Optional[str] = No
         demonstrations=demos, late_demonstrations=late, observation_sources=sources,
         demonstration_share=p.demonstration_share, demonstration_repeat=p.demonstration_repeat,
         demonstration_seconds=p.demonstration_budget(time_limit), failed_starts=float(restarts),
-        failure_reward=_failure_reward(prog, t, model, hyper, p.failure_forever))
+        failure_reward=_failure_reward(prog, t, model, hyper, p.failure_forever), plateau=p.plateau)
 
 
 def _hyperparameters(preset: Mapping[str, Any], block: Mapping[str, Any], settings: Optional[Mapping[str, Any]],

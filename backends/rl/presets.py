@@ -69,6 +69,9 @@ class Preset:
     failed_starts: float = 0.0
     # A failure step earns the reward's floor for every step after it (floor / (1 - gamma)), not once.
     failure_forever: bool = False
+    # A run ends (finished) once the latest this share of its steps brought validation no progress
+    # (:func:`.validation.plateau_reached`); its steps are then at most. None: it trains them all.
+    plateau: Optional[float] = None
     # The discount from the task: gamma = 1 - 1 / (horizon * deadline), so that the discount's
     # horizon 1 / (1 - gamma) is this share of the deadline (None: the algos' own gamma).
     horizon: Optional[float] = None

@@ -36,7 +36,7 @@ from .engines import Engine, get_engine
 from .exploration import LateDemonstrations, add_late
 from . import hyper as _hyper
 from .sb3 import PolicyController, Scaling, ScaledVecEnv
-from .validation import Schedule, log_validation, rule_text, validation_score, write_curves
+from .validation import Schedule, log_validation, plateau_reached, rule_text, validation_score, write_curves
 
 __all__ = ["TrainProgress", "TrainResult", "train", "validation_score"]
 
@@ -140,6 +140,9 @@ def _callbacks():
                 keep(self.model.replay_buffer, s.kept_rows)
             if s.schedule.due(n, s.seconds):
                 s.validate(self.model, n, self.logger)
+                if s.cfg.plateau is not None and plateau_reached(s.curves, n, s.cfg.plateau):
+                    s.plateau_step = n
+                    return False
             if s.stop.signal is not None:
                 return False
             if s.cfg.time_limit is not None and s.seconds >= s.cfg.time_limit:
@@ -189,6 +192,7 @@ class _Session:
         self.stop = stop if stop is not None else Interrupts()
         self.kept_rows = 0  # the demonstrations' rows of the replay buffer, never overwritten
         self.time_up = False
+        self.plateau_step: Optional[int] = None  # where validation stopped improving, and the run ended
         self.last_checkpoint = time.perf_counter()
         self.started = time.perf_counter()
 
@@ -343,6 +347,9 @@ class _Session:
         finally:
             if self.progress is not None:
                 self.progress.finish()
+        if self.plateau_step is not None:
+            self._tell(f"validation stopped improving: the run ends at step {self.plateau_step:,} of "
+                       f"{self.cfg.steps:,} (no gain over the latest {self.cfg.plateau:.0%} of its steps)")
         if self.curves:
             spent = self.schedule.spent
             self._tell(f"validation: {len(self.curves)} times, {spent:.1f} s of the run's {self.seconds:.1f} s "

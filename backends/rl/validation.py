@@ -22,12 +22,33 @@ from typing import Mapping, Optional
 
 import numpy as np
 
-__all__ = ["BUDGET", "Schedule", "validation_score", "validation_states", "write_curves"]
+__all__ = ["BUDGET", "PLATEAU_GAIN", "Schedule", "plateau_reached", "validation_score", "validation_states",
+           "write_curves"]
 
 #: Validation time at most this share of the training time.
 BUDGET = 0.10
 MIN_STATES = 100
 STEPS_PER_STATE = 50
+
+
+#: What counts as progress of the validation score (the mean rate over the tolerances): within
+#: this of the best so far. The noise of 500 validation states is about 2 points at a 60% rate.
+PLATEAU_GAIN = 0.01
+#: Validations before a run may end on a plateau.
+PLATEAU_VALIDATIONS = 3
+
+
+def plateau_reached(curves: list[dict], steps: int, share: float) -> bool:
+    """Whether validation has stopped improving: the latest ``share`` of the ``steps`` done has
+    brought the score nothing within :data:`PLATEAU_GAIN` of its best that it had not reached
+    before (its first validation that close to the best came at ``steps * (1 - share)`` or
+    earlier), after :data:`PLATEAU_VALIDATIONS` validations at least. With ``share`` one half, a
+    run ends once it has trained as long again as its progress took."""
+    if len(curves) < PLATEAU_VALIDATIONS:
+        return False
+    best = max(r["score"] for r in curves)
+    reached = min(r["steps"] for r in curves if r["score"] >= best - PLATEAU_GAIN)
+    return reached <= steps * (1.0 - share)
 
 
 def validation_score(rates: Mapping[int, float]) -> float:
