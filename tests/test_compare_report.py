@@ -232,3 +232,14 @@ def test_the_results_readme_is_built_from_the_reports_numbers_and_the_papers_cel
     assert "Table 1, bicycle R within 30, ρ reward" not in text  # ours, 90.0, is above the paper's 80.6
     assert "| bicycle | [report](bicycle/report.md) | `bash scripts/results bicycle` | 30 min | 2 cores |" in text
     assert "`bash scripts/results dc_motor attitude swimmer` makes them" in text
+    # the README's headline: ASAP-Phi (SAC) beside the ceiling and the paper, between its markers only
+    from asap_dsl.backends.compare.paper import HEADLINE_END, HEADLINE_START, main
+
+    (tmp_path / "README.md").write_text(f"# x\nbefore\n{HEADLINE_START}\nold table\n{HEADLINE_END}\nafter\n")
+    assert main([str(tmp_path), "--readme", str(tmp_path / "README.md")]) == 0
+    new = (tmp_path / "README.md").read_text()
+    assert new.startswith("# x\nbefore\n") and new.endswith(f"{HEADLINE_END}\nafter\n") and "old table" not in new
+    assert "| bicycle | R | 30 / 25 / 15 | 90.0 / " in new
+    assert "| dc_motor | R | 30 / 25 / 15 | not yet made | — | 97.4 / 95.2 / 89.0 |" in new
+    (tmp_path / "README.md").write_text("no markers\n")
+    assert main([str(tmp_path), "--readme", str(tmp_path / "README.md")]) == 1
