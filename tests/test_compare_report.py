@@ -230,7 +230,7 @@ def test_the_results_readme_is_built_from_the_reports_numbers_and_the_papers_cel
     assert "| dc_motor | R | 30 | 97.4 | — |" in t1  # no report yet
     assert "Table 1, bicycle R within 30, ASAP-Phi: ours 90.0 ± 0.0 against 92.8" in text
     assert "Table 1, bicycle R within 30, ρ reward" not in text  # ours, 90.0, is above the paper's 80.6
-    assert "| bicycle | [report](bicycle/report.md) | `bash scripts/results bicycle` | 30 min | 2 cores |" in text
+    assert "| bicycle | [report](bicycle/report.md) | `bash scripts/results bicycle` | — | — | 30 min | 2 cores |" in text
     assert "`bash scripts/results dc_motor attitude swimmer` makes them" in text
     # the README's headline: ASAP-Phi (SAC) beside the ceiling and the paper, between its markers only
     from asap_dsl.backends.compare.paper import HEADLINE_END, HEADLINE_START, main
