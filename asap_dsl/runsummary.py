@@ -5,7 +5,7 @@ kilobytes), its best model (about a megabyte) and a checkpoint with the replay b
 sweep of hours that must outlive the machine it runs on (a session, a CI job) keeps each
 finished run's summary in a directory that is committed: the first four files, and where asked
 the policy's actions on a few example states (``examples.json``: replayed through the rollout,
-they redraw the report's example trajectories exactly, without the model). ``asapc compare
+they redraw the policy's example trajectories without the model). ``asapc compare
 --summaries DIR`` writes them as runs finish and copies them back into its runs before it plans:
 a run read back from its summary is finished, never trained again, and its evaluation is still
 checked against the manifest's record of its model.

@@ -29,10 +29,22 @@ def _table1(report: Path) -> str:
     return (report / "report.md").read_text().split("## Table 1 — rewards", 1)[1].split("\n## ", 1)[0]
 
 
-def test_a_lost_runs_directory_is_read_back_from_its_summaries_not_trained_again(tiny, tmp_path):
-    summaries = tmp_path / "kept"
-    first = _sweep(tiny, tmp_path / "a", summaries)
+@pytest.fixture(scope="module")
+def swept(tmp_path_factory):
+    """One tiny sweep with its summaries kept (both tests read it; neither trains again)."""
+    from conftest import RAIL
+
+    root = tmp_path_factory.mktemp("summaries")
+    spec = root / "rail.asap"
+    spec.write_text(RAIL)
+    first = _sweep(spec, root / "a", root / "kept")
     assert first.returncode == 0, first.stderr
+    return spec, root
+
+
+def test_a_lost_runs_directory_is_read_back_from_its_summaries_not_trained_again(swept):
+    tiny, tmp_path = swept
+    summaries = tmp_path / "kept"
     kept = sorted(p.name for p in summaries.iterdir())
     assert len(kept) == 2 and kept == sorted(p.name for p in (tmp_path / "a" / "runs").iterdir() if p.is_dir())
     example = next(k for k in kept if "-asap-s0-" in k)
@@ -47,17 +59,33 @@ def test_a_lost_runs_directory_is_read_back_from_its_summaries_not_trained_again
     assert len(jobs) == 2 and not any(j["trained_now"] for j in jobs)
     assert not any(j["model"] for j in jobs)
     assert _table1(tmp_path / "b") == _table1(tmp_path / "a")  # the same evaluations, the same table
-    # the example trajectories drawn again from the recorded actions: the very same pictures
+    # the example trajectories drawn again from the recorded actions: the policy's own paths
     for name in ("state_space", "trajectories"):
-        png = [(tmp_path / d / "plots" / f"{name}.png").read_bytes() for d in ("a", "b")]
-        assert png[0] == png[1], name
+        assert (tmp_path / "b" / "plots" / f"{name}.png").read_bytes()[:4] == b"\x89PNG", name
+    import numpy as np
+
+    import asap_dsl
+    from asap_dsl.backends.compare.controllers import OracleController
+    from asap_dsl.backends.rl.evaluation import load_run
+    from asap_dsl.rollout import Evaluator
+    from asap_dsl.runsummary import read_examples
+
+    run = RunDir(tmp_path / "b" / "runs" / example)
+    states, actions = read_examples(run, run.read_manifest())
+    prog = asap_dsl.load(tiny)
+    ev = Evaluator(prog, "go", states)
+    replayed = ev.run(OracleController(states, actions, 1), record=True)
+    policy = ev.run(load_run(tmp_path / "a" / "runs" / example).controller(), record=True)
+    assert np.allclose(replayed.trajectories, policy.trajectories, atol=1e-6, equal_nan=True)
+    assert np.array_equal(replayed.t_reach, policy.t_reach)
     runs = (tmp_path / "b" / "report.md").read_text().split("## What was run")[1]
     assert runs.count("| reused |") == 2
 
 
-def test_a_summary_is_refused_for_an_unfinished_run_and_never_overwrites_a_run(tiny, tmp_path):
-    first = _sweep(tiny, tmp_path / "a", tmp_path / "kept")
-    assert first.returncode == 0, first.stderr
+def test_a_summary_is_refused_for_an_unfinished_run_and_never_overwrites_a_run(swept, tmp_path):
+    _, root = swept
+    shutil.copytree(root / "a", tmp_path / "a", ignore=shutil.ignore_patterns(".lock"))
+    shutil.copytree(root / "kept", tmp_path / "kept")
     run = next(p for p in (tmp_path / "a" / "runs").iterdir() if p.is_dir())
     manifest = json.loads((run / "run.json").read_text())
     # a summary without its model: reportable, its evaluation checked against the model's record

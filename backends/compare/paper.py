@@ -190,25 +190,32 @@ def replace_headline(text: str, table: str) -> str:
 
 
 def main(argv: Optional[list[str]] = None) -> int:
-    import argparse
-
-    ap = argparse.ArgumentParser(prog="python -m backends.compare.paper", description=__doc__.split("\n")[0])
-    ap.add_argument("results", nargs="?", default="docs/results")
-    ap.add_argument("--readme", help="also rewrite the headline table of this README")
-    args = ap.parse_args(sys.argv[1:] if argv is None else argv)
-    results = Path(args.results)
+    """``[RESULTS] [--readme README]``: the results page, and the README's headline table."""
+    args = list(sys.argv[1:] if argv is None else argv)
+    readme_path = None
+    if "--readme" in args:
+        i = args.index("--readme")
+        if i + 1 >= len(args):
+            print("paper: --readme needs the README's path", file=sys.stderr)
+            return 2
+        readme_path = args.pop(i + 1)
+        args.pop(i)
+    if len(args) > 1 or any(a.startswith("-") for a in args):
+        print("usage: python -m backends.compare.paper [RESULTS] [--readme README]", file=sys.stderr)
+        return 2
+    results = Path(args[0] if args else "docs/results")
     try:
         text = readme(results)
-        if args.readme:
-            readme_text = replace_headline(Path(args.readme).read_text(encoding="utf-8"), headline(results))
+        if readme_path:
+            readme_text = replace_headline(Path(readme_path).read_text(encoding="utf-8"), headline(results))
     except (ValueError, OSError) as err:
         print(f"paper: {err}", file=sys.stderr)
         return 1
     atomic_write(results / "README.md", text)
     print(f"wrote {results / 'README.md'}")
-    if args.readme:
-        atomic_write(Path(args.readme), readme_text)
-        print(f"wrote the headline table of {args.readme}")
+    if readme_path:
+        atomic_write(Path(readme_path), readme_text)
+        print(f"wrote the headline table of {readme_path}")
     return 0
 
 
