@@ -191,3 +191,19 @@ def test_bad_compare_flags(tiny, capsys):
     code, err = run("compare", tiny, "--algos", "sac,a2c", "--engine", "sbx")  # checked before anything trains
     assert code == 2 and "the sbx engine has no a2c" in err
     assert "Traceback" not in err
+
+
+def test_sweep_workers_each_hold_their_own_core(monkeypatch):
+    """Two workers on two cores: one each (their helper threads stay off the other's); more workers
+    than cores, or one: the kernel places them."""
+    from types import SimpleNamespace
+
+    from asap_dsl.backends.compare import sweep
+
+    monkeypatch.setattr(sweep.os, "sched_getaffinity", lambda pid: {3, 5})
+    alive = lambda core: SimpleNamespace(core=core, process=SimpleNamespace(is_alive=lambda: True))  # noqa: E731
+    dead = SimpleNamespace(core=3, process=SimpleNamespace(is_alive=lambda: False))
+    assert sweep._free_core([], 2) == 3
+    assert sweep._free_core([alive(3)], 2) == 5
+    assert sweep._free_core([dead, alive(5)], 2) == 3  # a dead worker's core is free again
+    assert sweep._free_core([], 1) is None and sweep._free_core([], 3) is None

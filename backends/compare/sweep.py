@@ -257,10 +257,18 @@ def _spread(done: list[dict], unique: list[Job], jobs: Sequence[Job], index: lis
 
 
 # ------------------------------------------------------------------------------------ local workers
-def _worker_main(conn, parent: int, threads: int) -> None:
+def _worker_main(conn, parent: int, threads: int, core: Optional[int] = None) -> None:
     """A worker process: jobs in, results out, until the pipe closes. It dies with its parent;
     Ctrl-C is the parent's to forward (as SIGTERM), and a SIGTERM before a training has begun
     ends the job as interrupted (each training installs its own handler)."""
+    if core is not None:
+        # One core per worker: the learner's helper threads (XLA's pool, the compiled step's) stay
+        # on it instead of taking the other worker's (two DC runs side by side: 90 s unpinned,
+        # 79 s pinned, 83 s for one alone).
+        try:
+            os.sched_setaffinity(0, {core})
+        except OSError:
+            pass
     from asap_dsl.processes import die_with_parent
 
     die_with_parent(parent)
@@ -285,10 +293,11 @@ def _worker_main(conn, parent: int, threads: int) -> None:
 
 
 class _Worker:
-    def __init__(self, ctx, threads: int):
+    def __init__(self, ctx, threads: int, core: Optional[int] = None):
         parent_end, child_end = ctx.Pipe()
         self.conn = parent_end
-        self.process = ctx.Process(target=_worker_main, args=(child_end, os.getpid(), threads), daemon=True)
+        self.core = core
+        self.process = ctx.Process(target=_worker_main, args=(child_end, os.getpid(), threads, core), daemon=True)
         self.process.start()
         child_end.close()
         self.job: Optional[tuple[int, Job]] = None
@@ -309,6 +318,19 @@ class _Worker:
             self.process.kill()
             self.process.join(5)
         self.conn.close()
+
+
+def _free_core(pool: list, workers: int) -> Optional[int]:
+    """A core of this process's set that no live worker holds, when each of ``workers`` can have its
+    own; None otherwise (then the kernel places them)."""
+    try:
+        cores = sorted(os.sched_getaffinity(0))
+    except (AttributeError, OSError):
+        return None
+    if workers < 2 or workers > len(cores):
+        return None
+    held = {w.core for w in pool if w.process.is_alive()}
+    return next((c for c in cores if c not in held), None)
 
 
 def _died(worker: _Worker) -> str:
@@ -344,7 +366,7 @@ def _execute_local(jobs, runs_dir, workers, tell) -> list[dict]:
                 while queue and not stop.requested:
                     idle = [w for w in pool if w.job is None and w.process.is_alive()]
                     if not idle and len(pool) < workers:
-                        pool.append(_Worker(ctx, 1))
+                        pool.append(_Worker(ctx, 1, _free_core(pool, workers)))
                         idle = [pool[-1]]
                     if not idle:
                         break
