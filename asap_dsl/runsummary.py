@@ -34,9 +34,11 @@ SUMMARY_FILES = (MANIFEST, SPEC_COPY, EVAL, CURVES)
 
 
 def is_summary(run: RunDir, manifest: Mapping) -> bool:
-    """A finished run whose model was left out (its summary only): it can be reported, not
-    evaluated again or resumed."""
-    return manifest["status"] == "finished" and manifest.get("model") is not None and not run.model_path.exists()
+    """A finished run whose model and checkpoint were left out (its summary only): it can be
+    reported, not evaluated again or resumed. (A run that lost its model but kept its checkpoint
+    is damaged, not a summary.)"""
+    return (manifest["status"] == "finished" and manifest.get("model") is not None
+            and not run.model_path.exists() and not run.checkpoint_dir.exists())
 
 
 def save_summary(run_path: PathLike, dest: PathLike, examples: Optional[Mapping[str, Any]] = None) -> Path:
@@ -55,8 +57,7 @@ def save_summary(run_path: PathLike, dest: PathLike, examples: Optional[Mapping[
             raise RunError(f"{shown(run.path)}: not finished (it is {run.status_text(manifest)}): no summary yet")
         run.read_spec()
         run.read_eval(manifest)
-        names = [n for n in SUMMARY_FILES if (run.path / n).exists()]
-        sources = {n: run.path / n for n in names}
+        sources = {n: run.path / n for n in SUMMARY_FILES if (run.path / n).exists()}
         with writing(dest):
             dest.mkdir(parents=True, exist_ok=True)
             stage = Path(tempfile.mkdtemp(prefix=f".{target.name}.new-", dir=dest))

@@ -96,7 +96,7 @@ def _run_evaluation(result: dict, episodes: int, oracle) -> dict:
 EXAMPLE_STATES = 4
 
 
-def _policy_controller(result: dict):
+def _policy_controller(result: dict, n_action: int):
     """The run's policy, or (a summary without its model) its recorded example actions replayed;
     None when it has neither."""
     from ..rl.evaluation import load_run
@@ -110,7 +110,7 @@ def _policy_controller(result: dict):
     if recorded is None:
         return None
     states, actions = recorded
-    return OracleController(states, actions, actions[0].shape[1] if actions else 0)
+    return OracleController(states, actions, n_action)
 
 
 def _recorded_examples(result: dict, episodes: int) -> dict:
@@ -132,7 +132,7 @@ def _examples(prog, task: str, result: dict, oracle, states: np.ndarray, title: 
     robustness of ``asap`` along them, and the paths in the state space (``phase``)."""
     from .phase_plots import example
 
-    controller = _policy_controller(result)
+    controller = _policy_controller(result, prog.system.n_action)
     if controller is None:
         return None
     asap = prog.task(task).asap
@@ -173,8 +173,8 @@ def compare(specs: Sequence[str], *, tasks: Optional[Sequence[str]] = None,
     states)`` is told when the oracle starts computing a column's minima (solved 0: they were not
     cached; minutes for a thousand states) and when it has them all. ``summaries``: a directory of
     run summaries (:mod:`asap_dsl.runsummary`) copied into the runs before the sweep plans (read
-    back, not trained) and written there as each run finishes, the model only of the run the
-    report draws its examples from: a sweep that outlives its machine, its summaries committed.
+    back, not trained) and written there as each run finishes, with its policy's recorded example
+    actions for the run the report draws its examples from: a sweep that outlives its machine.
 
     Holds ``out``'s exclusive lock throughout (a second compare on it is refused, naming the
     first). Runs that cannot be used (failed, damaged) are left out of the tables, named in the

@@ -123,7 +123,7 @@ def _state(run: RunDir) -> str:
             return "broken"
         if manifest["status"] == "finished":
             try:
-                summary = is_summary(run, manifest) and not run.checkpoint_dir.exists()
+                summary = is_summary(run, manifest)
                 if not summary:
                     run.model_file(manifest)
                 run.read_eval(manifest)
@@ -263,8 +263,9 @@ def _worker_main(conn, parent: int, threads: int, core: Optional[int] = None) ->
     ends the job as interrupted (each training installs its own handler)."""
     if core is not None:
         # One core per worker: the learner's helper threads (XLA's pool, the compiled step's) stay
-        # on it instead of taking the other worker's (two DC runs side by side: 90 s unpinned,
-        # 79 s pinned, 83 s for one alone).
+        # on it instead of taking the other worker's. Not shown to pay yet: two bare trainings
+        # under taskset took 79 s pinned against 90 s free, but through the sweep
+        # (benchmarks/sweep_workers.py) free / pinned was 0.84x and 0.98x: noise or worse.
         try:
             os.sched_setaffinity(0, {core})
         except OSError:
