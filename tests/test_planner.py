@@ -168,3 +168,19 @@ def test_the_shortenings_clock_is_bounded_and_finding_keeps_the_whole_budget():
     assert actions is not None and used > 0 and len(actions) >= rail_minimum(-0.6)
     with pytest.raises(ValueError, match="shorten_seconds must be a finite number, at least 0"):
         PlannerBudget(shorten_seconds=-1.0)
+
+
+
+def test_the_planners_workers_are_spawned_not_forked(monkeypatch):
+    """A worker forked from a process that has stepped MuJoCo inherits its thread pool, and
+    freeing it there waits in pthread_cond_destroy for threads that exist only in the parent, for
+    ever (the swimmer's second task hung so: reproduced with a forked pool whose child runs
+    ``gc.collect()`` over an inherited ``MujocoSwimmer(nthread=2)``; spawned, it finishes). The
+    collection's timing is not the test's to choose, so this asserts the start method itself."""
+    import multiprocessing as mp
+
+    asked = []
+    real = mp.get_context
+    monkeypatch.setattr(mp, "get_context", lambda method=None: asked.append(method) or real(method))
+    rep = plan_states(asap_dsl.loads(RAIL, "rail.asap"), "go", episodes=4, budget=SMALL, workers=2)
+    assert len(rep.results) == 4 and asked and set(asked) == {"spawn"}
