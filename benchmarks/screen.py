@@ -300,10 +300,10 @@ def patch_return_bound(gamma: float, tail: float) -> dict:
         for k in range(self.n_envs):
             self.mc_rows[k].append(row)
             if done[k]:
-                rows = self.mc_rows[k]
+                # What follows the last step: the tail's bound after a time-out, nothing after a terminal.
                 g = tail if infos[k].get("TimeLimit.truncated", False) else 0.0
-                for j, r_ in enumerate(reversed(rows)):
-                    g = float(self.rewards[r_, k]) + (gamma * g if (j > 0 or infos[k].get("TimeLimit.truncated", False)) else 0.0)
+                for r_ in reversed(self.mc_rows[k]):
+                    g = float(self.rewards[r_, k]) + gamma * g
                     self.mc[r_, k] = g
                 stats["episodes"] += 1
                 self.mc_rows[k] = []

@@ -170,7 +170,6 @@ def test_the_shortenings_clock_is_bounded_and_finding_keeps_the_whole_budget():
         PlannerBudget(shorten_seconds=-1.0)
 
 
-
 def test_the_planners_workers_are_spawned_not_forked(monkeypatch):
     """A worker forked from a process that has stepped MuJoCo inherits its thread pool, and
     freeing it there waits in pthread_cond_destroy for threads that exist only in the parent, for

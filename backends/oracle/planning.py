@@ -139,7 +139,8 @@ def _map(payloads: list, workers: int, progress: Optional[Callable[[int], None]]
         # Spawned, never forked: the parent has stepped the simulator (the pilot, the first task),
         # and a forked worker that frees an inherited MuJoCo thread pool waits in
         # pthread_cond_destroy for threads that only exist in the parent: for ever (seen on the
-        # swimmer's second task; tests/test_planner.py reproduces it). A spawned worker starts clean.
+        # swimmer's second task; reproduced with a forked pool whose child collects an inherited
+        # MujocoSwimmer(nthread=2)). A spawned worker starts clean.
         with mp.get_context("spawn").Pool(workers, initializer=_threads_for_workers) as pool:
             for part in pool.imap_unordered(_plan_chunk, payloads):
                 parts.append(part)
