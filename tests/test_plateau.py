@@ -40,13 +40,14 @@ def test_the_run_ends_on_the_plateau_as_finished_and_says_so(tiny, tmp_path, mon
         def finish(self): pass
         def note(self, line): told.append(line)
 
-    res = train(str(tiny), "go", steps=40_000, seed=0, out=tmp_path / "run", eval_episodes=50,
+    res = train(str(tiny), "go", steps=80_000, seed=0, out=tmp_path / "run", eval_episodes=50,
                 progress=Progress())
     assert res.status == "finished" and res.config.plateau == 0.5
-    # the rail is learnt in a few thousand steps: the run stops long before its 40,000
-    assert res.steps < 40_000, res.curves
+    # the rail's validation stops improving after 20,000-30,000 steps (measured): the run stops
+    # once it has trained as long again, long before its 80,000
+    assert res.steps < 80_000, res.curves
     assert plateau_reached(res.curves, res.steps, 0.5)
     earlier = [plateau_reached(res.curves[:i + 1], r["steps"], 0.5) for i, r in enumerate(res.curves[:-1])]
     assert not any(earlier)  # it ended at the first validation that found the plateau
-    assert any(f"the run ends at step {res.steps:,} of 40,000" in line for line in told), told
+    assert any(f"the run ends at step {res.steps:,} of 80,000" in line for line in told), told
     assert res.evaluation is not None

@@ -114,13 +114,15 @@ def test_a_killed_tuning_continues_without_running_finished_trials_again(spec, t
 
 def test_a_time_limit_stops_and_the_next_call_goes_on(spec, tmp_path, capsys):
     out = tmp_path / "tune"
-    code, stdout, err = asapc(capsys, "tune", spec, "--trials", 1, "--out", out, "--time-limit", 2, *FAST)
+    # 10,000 steps a trial: more than any machine trains in the 2 s (the block's 2,000 took under 2 s on CI)
+    longer = [*FAST, "--steps", 10_000]
+    code, stdout, err = asapc(capsys, "tune", spec, "--trials", 1, "--out", out, "--time-limit", 2, *longer)
     assert code == 0, err
     assert "stopped at the time limit: run the same command again to continue" in err
     assert "0 of 1 trials done" in err and "no trial scored higher" in stdout
     m = RunDir(out / "start").read_manifest()
-    assert m["steps_done"] < 2000
-    code, stdout, err = asapc(capsys, "tune", spec, "--trials", 1, "--out", out, *FAST)
+    assert m["steps_done"] < 10_000
+    code, stdout, err = asapc(capsys, "tune", spec, "--trials", 1, "--out", out, *longer)
     assert code == 0, err
     assert RunDir(out / "start").read_manifest()["created"] == m["created"]  # continued, not begun again
     assert "1 of 1 trials done" in err

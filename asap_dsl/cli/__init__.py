@@ -24,7 +24,8 @@ def _terminated_early(signum, frame) -> None:  # before main(): nothing exists y
 
 # As the program (`asapc`, `python -m asap_dsl.cli`), SIGTERM is handled from the first import on:
 # what follows takes a second to load, and a SIGTERM then must not end it silently (143).
-if sys.argv[:1] == ["-m"] or os.path.basename(sys.argv[0] if sys.argv else "") == "asapc":
+_PROGRAM = sys.argv[:1] == ["-m"] or os.path.basename(sys.argv[0] if sys.argv else "") == "asapc"
+if _PROGRAM:
     for _sig, _default in ((signal.SIGTERM, signal.SIG_DFL), (signal.SIGINT, signal.default_int_handler)):
         if signal.getsignal(_sig) is _default:
             signal.signal(_sig, _terminated_early)
@@ -130,5 +131,11 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     except (Exception, KeyboardInterrupt) as err:
         return _exit_status(err)
     finally:
-        if main_thread:
+        if _PROGRAM and main_thread:
+            # The command is over and its status decided. Python's finalization resets handlers to
+            # the default, so a signal while torch and JAX tear down would end a finished command
+            # as 143; ignored from here on, the status says what happened.
+            signal.signal(signal.SIGTERM, signal.SIG_IGN)
+            signal.signal(signal.SIGINT, signal.SIG_IGN)
+        elif main_thread:
             signal.signal(signal.SIGTERM, old)
