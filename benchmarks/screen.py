@@ -25,6 +25,7 @@ process only, so that an idea can be judged in four minutes before it is built p
 - ``--return-bound``: the critic's targets bounded below by the realised return (:func:`patch_return_bound`).
 - ``--failed-demos EVERY,STATES,REPEAT,SECONDS``: the oracle's sequences for the latest failed
   starts go into the replay buffer as the run goes (:func:`patch_failed_demos`).
+- ``--demo-bc BETA,FILTER``: SAC's actor also imitates the stored demonstrations (:func:`patch_demo_bc`).
 - ``--observe-rho``: the observation also holds each atom's robustness (:func:`patch_observe_rho`).
 - ``--steps N`` with ``--minutes 0``: a step budget instead of the clock (a loaded machine).
 - ``--preset-set NAME=VALUE`` (repeatable): a field of the default preset for this process, to
@@ -407,6 +408,80 @@ def patch_return_bound(gamma: float, tail: float) -> dict:
     return stats
 
 
+def patch_demo_bc(beta: float, q_filter: bool, batch: int = 256) -> dict:
+    """SAC's actor also imitates the oracle's demonstrations: on ``batch`` demonstration pairs
+    (observation, the oracle's action) drawn each step, the policy's mean is pulled towards the
+    oracle's action (squared distance, weighted ``beta`` times the batch's mean |Q|, as TD3+BC
+    normalises); with ``q_filter``, only where the critics score the oracle's action above the
+    policy's own (Nair et al. 2018). The critic evaluates the policy it has: along an oracle's
+    path it learns the oracle's value only once the policy takes the oracle's actions there.
+    Returns the counters."""
+    import jax
+    import jax.numpy as jnp
+
+    from asap_dsl.backends.rl import demonstrations, engines
+
+    pairs: dict = {"obs": [], "act": []}
+    stats = {"pairs": 0}
+    orig_store = demonstrations.store
+
+    def store(replay_buffer, tr):
+        if len(tr):
+            pairs["obs"].append(tr.obs)
+            pairs["act"].append(np.clip(tr.actions, -0.97, 0.97))  # a tanh mean reaches +-1 only at infinity
+            stats["pairs"] = sum(len(a) for a in pairs["act"])
+        return orig_store(replay_buffer, tr)
+
+    demonstrations.store = store
+
+    def update_actor(actor_state, qf_state, ent_coef_state, observations, key):
+        key, dropout_key, noise_key, pick_key = jax.random.split(key, 4)
+        have = bool(pairs["obs"])  # read when traced: the demonstrations are stored before learning
+        if have:
+            d_obs = jnp.asarray(np.concatenate(pairs["obs"]))
+            d_act = jnp.asarray(np.concatenate(pairs["act"]))
+            idx = jax.random.randint(pick_key, (batch,), 0, d_obs.shape[0])
+            o, a = d_obs[idx], d_act[idx]
+
+        def actor_loss(params):
+            dist = actor_state.apply_fn(params, observations)
+            actor_actions = dist.sample(seed=noise_key)
+            log_prob = dist.log_prob(actor_actions).reshape(-1, 1)
+            qf_pi = qf_state.apply_fn(qf_state.params, observations, actor_actions, rngs={"dropout": dropout_key})
+            min_qf_pi = jnp.min(qf_pi, axis=0)
+            ent_coef_value = ent_coef_state.apply_fn({"params": ent_coef_state.params})
+            loss = (ent_coef_value * log_prob - min_qf_pi).mean()
+            if have:
+                mean = actor_state.apply_fn(params, o).mode()
+                w = jnp.ones(batch)
+                if q_filter:
+                    q_demo = jnp.min(qf_state.apply_fn(qf_state.params, o, a, rngs={"dropout": dropout_key}), axis=0)
+                    q_own = jnp.min(qf_state.apply_fn(qf_state.params, o, jax.lax.stop_gradient(mean),
+                                                      rngs={"dropout": dropout_key}), axis=0)
+                    w = jax.lax.stop_gradient((q_demo[:, 0] > q_own[:, 0]).astype(jnp.float32))
+                scale = jax.lax.stop_gradient(jnp.abs(min_qf_pi).mean())
+                loss = loss + beta * scale * (w * jnp.sum((mean - a) ** 2, axis=-1)).mean()
+            return loss, -log_prob.mean()
+
+        (actor_loss_value, entropy), grads = jax.value_and_grad(actor_loss, has_aux=True)(actor_state.params)
+        actor_state = actor_state.apply_gradients(grads=grads)
+        return actor_state, qf_state, actor_loss_value, key, entropy
+
+    orig_model_class = engines.SbxEngine._model_class
+    made: dict = {}
+
+    def _model_class(self, algo):
+        cls = orig_model_class(self, algo)
+        if algo != "sac":
+            return cls
+        if cls not in made:  # on top of any other probe's SAC (the return bound's critic)
+            made[cls] = type("ImitatingSAC", (cls,), {"update_actor": staticmethod(jax.jit(update_actor))})
+        return made[cls]
+
+    engines.SbxEngine._model_class = _model_class
+    return stats
+
+
 def patch_failed_demos(prog, task: str, every: int, states: int, repeat: int, state_seconds: float):
     """Every ``every`` steps, the oracle solves up to ``states`` of the failed starts (initial
     states of training episodes that did not reach: the curriculum's pool, the latest first) and
@@ -480,6 +555,7 @@ def main() -> int:
     ap.add_argument("--observe-rho", action="store_true")
     ap.add_argument("--return-bound", action="store_true")
     ap.add_argument("--failed-demos", help="EVERY,STATES,REPEAT,SECONDS")
+    ap.add_argument("--demo-bc", help="BETA,FILTER (FILTER 1: only where the critics prefer the oracle's action)")
     ap.add_argument("--steps", type=int, default=20_000_000, help="a step budget (with --minutes 0: none)")
     args = ap.parse_args()
     prog = asap_dsl.load(args.spec)
@@ -505,6 +581,9 @@ def main() -> int:
         more = patch_return_bound(gamma, float(cfg.failure_reward))
     if args.observe_rho:
         patch_observe_rho(prog, args.task)
+    if args.demo_bc:
+        beta, filt = args.demo_bc.split(",")
+        more["demo_bc"] = patch_demo_bc(float(beta), bool(int(filt)))
     if args.action_search:
         k, n, beta, local = args.action_search.split(",")
         patch_action_search(int(k), int(n), float(beta), float(local))

@@ -6,6 +6,7 @@ not add them again, and runs that cannot have them are told why."""
 from __future__ import annotations
 
 import pickle
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -77,6 +78,28 @@ def test_the_buffer_holds_exactly_the_replayed_oracle_sequences(rail):
         assert np.allclose(scaling.action(a_b), a, atol=1e-5)  # the buffer's action is the oracle's, scaled
     goal_steps = np.cumsum([len(r.actions) for r in report.results if r.status == "solved" and len(r.actions)]) - 1
     assert np.all(rew[goal_steps] == rew.max())  # the reaching step earns r_sat
+
+
+def test_a_black_box_gets_the_planners_sequences_and_the_buffer_holds_their_replays(monkeypatch):
+    """A simulator's run has demonstrations too: the planner's sequences (it reaches through the
+    black box), each replayed to the goal through the learner's own environment."""
+    from asap_dsl.backends.rl.config import resolve_config
+    from asap_dsl.backends.rl.demonstrations import add_demonstrations, solve
+
+    monkeypatch.syspath_prepend(str(Path(__file__).resolve().parent / "fixtures"))
+    from test_planner import CART, cart_minimum
+
+    prog = asap_dsl.loads(CART % "user_sims:double_integrator", "cart.asap")
+    assert resolve_config(prog).demonstrations == 300  # as on known dynamics
+    w = solve(prog, "reach", 4, 0, workers=2, state_seconds=0.5, cache=False)
+    assert w.reason is None and w.solved == len(w.sequences) >= 3
+    for x0, seq in zip(w.starts, w.sequences):  # reached, and no later than the minimum's bound allows
+        assert len(seq) >= cart_minimum(*map(float, x0))
+    model, scaling, wrap = _learner(prog)
+    demos = add_demonstrations(prog, "reach", model, wrap, scaling, w)
+    assert demos.added == len(w.sequences) and demos.transitions == sum(len(q) for q in w.sequences)
+    rew = _buffer_rows(model.replay_buffer)[2][:demos.transitions]
+    assert np.sum(rew == rew.max()) >= demos.added  # every replay reaches (r_sat)
 
 
 def test_demonstration_states_are_not_evaluation_or_validation_states(rail):
@@ -201,18 +224,21 @@ def test_a_run_that_finds_nothing_gets_the_oracles_sequences_once(tmp_path, caps
         with open(out / "checkpoint" / "replay.pkl", "rb") as f:
             return int(pickle.load(f).pos)
 
+    # Validation may take a tenth of the training time: 8,000 steps leave room for a validation after
+    # the first tenth on a loaded machine too (with 3,000, the second validation came at the last step).
+    STEPS = 8000
     base = ["train", spec, "--envs", 2, "--engine", "sb3", "--no-eval", "--out", out]
-    code, _, err = asapc(capsys, *base, "--steps", 3000)
+    code, _, err = asapc(capsys, *base, "--steps", STEPS)
     assert code == 0 and "no validation has succeeded after" in err, err
     late = RunDir(out).read_manifest()["late_demonstrations"]
-    assert 300 <= late["at_step"] < 3000 and late["states"] == 8 and late["added"] == 8 and late["oracle_seconds"] > 0
-    first = RunDir(out).read_manifest()["demonstrations"]  # the preset's longest: 3 states for 3000 steps
-    assert first["states"] == 3 and first["replays"] % 4 == 0
+    assert 300 <= late["at_step"] < STEPS and late["states"] == 8 and late["added"] == 8 and late["oracle_seconds"] > 0
+    first = RunDir(out).read_manifest()["demonstrations"]  # the preset's longest: one state per 800 steps
+    assert first["states"] == STEPS // 800 and first["replays"] % 4 == 0
     slots = -(-late["transitions"] // 2) + -(-first["transitions"] // 2)
-    assert buffer_pos() == slots + 3000 // 2
-    code, _, err = asapc(capsys, "train", spec, "--out", out, "--resume", "--steps", 3060, "--no-eval")
+    assert buffer_pos() == slots + STEPS // 2
+    code, _, err = asapc(capsys, "train", spec, "--out", out, "--resume", "--steps", STEPS + 60, "--no-eval")
     assert code == 0 and "no validation has succeeded after" not in err
-    assert buffer_pos() == slots + 3060 // 2  # within the buffer the run was sized for
+    assert buffer_pos() == slots + (STEPS + 60) // 2  # within the buffer the run was sized for
 
     near = tmp_path / "near.asap"  # half the init box starts in the goal: validation succeeds
     near.write_text(far.replace("init [-1.5, -0.5]", "init [0.8, 1.6]"))

@@ -2,7 +2,9 @@
 
 On a system with known dynamics (``ode`` or ``map``) the minimum-time oracle
 (:mod:`asap_dsl.backends.oracle`) finds, from an initial state, an action sequence that reaches
-``asap`` while ``avoid`` stays false and the state inside the state space. Replayed through the
+``asap`` while ``avoid`` stays false and the state inside the state space; on a black box
+(``simulator``) the sampling planner does (:mod:`asap_dsl.backends.oracle.planning`: not the
+fastest sequence, one that reaches, which is what a learner that never reaches needs). Replayed through the
 very environment the learner trains in — the same simulator, reward, observation and action
 scaling, episode ends and SB3's time-limit handling — each step of such a sequence is a true
 transition of the learner's own MDP: an exact witness, not an approximation of one. Before
@@ -31,7 +33,8 @@ from .config import VALIDATION_SEED
 from .presets import OFF_POLICY
 
 __all__ = ["DEMONSTRATION_SEED_OFFSET", "DEMONSTRATION_STATE_SECONDS", "Demonstrations", "Witnesses",
-           "add_demonstrations", "demonstration_seed", "keep", "longest", "replay", "solve", "store", "unavailable"]
+           "add_demonstrations", "demonstration_seed", "keep", "longest", "replay", "search_count", "searcher", "solve",
+           "store", "unavailable"]
 
 #: Added to the run's seed for the demonstrations' initial states (and their episode lengths).
 #: Larger than both fixed seeds, so that no run's seed can map onto them.
@@ -51,9 +54,7 @@ def unavailable(prog, algo: str) -> Optional[str]:
     """Why a run of ``algo`` on ``prog`` cannot have demonstrations (None when it can)."""
     if algo not in OFF_POLICY:
         return f"{algo} has no replay buffer (only {', '.join(OFF_POLICY)} do)"
-    if prog.system.kind == "simulator":
-        return "the system is a black box (the oracle needs its dynamics)"
-    return None
+    return None  # known dynamics: the oracle; a black box: the planner (:func:`solve`)
 
 
 @dataclass(frozen=True)
@@ -74,6 +75,7 @@ class Demonstrations:
     seed: Optional[int] = None
     reason: Optional[str] = None
     cached: bool = False  # the oracle's sequences were read back from the cache (its seconds charged all the same)
+    searcher: str = "oracle"  # or the planner, on a black box (:func:`searcher`)
 
     def to_dict(self) -> dict:
         return asdict(self)
@@ -84,7 +86,7 @@ class Demonstrations:
             return f"demonstrations: none ({self.reason})"
         chosen = "" if self.replays == self.solved else f", {self.replays} replays of the longest"
         where = ", read back from the cache" if self.cached else ""
-        return (f"demonstrations: {self.solved} of {self.states} states solved by the oracle in "
+        return (f"demonstrations: {self.solved} of {self.states} states solved by the {self.searcher} in "
                 f"{self.oracle_seconds:.1f} s (seed {self.seed}{where}){chosen}, {self.added} stored: {self.transitions:,} "
                 f"transitions in the replay buffer ({self.seconds:.1f} s in all)")
 
@@ -250,6 +252,24 @@ class Witnesses:
                    solved=int(data["solved"]), cached=True)
 
 
+def searcher(prog) -> str:
+    """Who finds the sequences: the ``oracle`` on known dynamics, the ``planner`` on a black box."""
+    return "planner" if prog.system.kind == "simulator" else "oracle"
+
+
+def search_count(prog, count: int, state_seconds: float = DEMONSTRATION_STATE_SECONDS,
+                 budget_seconds: Optional[float] = None) -> int:
+    """The states :func:`solve` draws for ``count`` asked. The oracle takes them in batches until
+    the budget is spent; the planner's pilot runs once per call, so it takes all in one call, as
+    many as half the budget plans at the time per state on every core (the pilot and the
+    exchange of sequences between states take the other half)."""
+    from asap_dsl.limits import available_cores
+
+    if searcher(prog) == "planner" and budget_seconds is not None:
+        return min(int(count), max(1, int(budget_seconds / 2 / state_seconds * available_cores())))
+    return int(count)
+
+
 def solve(prog, task: str, count: int, run_seed: int, *, workers: Optional[int] = None,
           state_seconds: float = DEMONSTRATION_STATE_SECONDS, budget_seconds: Optional[float] = None,
           check_stop: Optional[Callable[[], None]] = None, cache: bool = True) -> Witnesses:
@@ -270,6 +290,8 @@ def solve(prog, task: str, count: int, run_seed: int, *, workers: Optional[int] 
     from asap_dsl.limits import available_cores
 
     from ..oracle.goals import OracleUnsupported
+    from ..oracle.planner import PlannerUnsupported
+    from ..oracle.planning import plan_states
     from ..oracle.solver import run as run_oracle
 
     start = time.perf_counter()
@@ -281,33 +303,44 @@ def solve(prog, task: str, count: int, run_seed: int, *, workers: Optional[int] 
         hit = _load(path, n)
         if hit is not None:
             return hit
+    black_box = searcher(prog) == "planner"
+    count = search_count(prog, count, state_seconds, budget_seconds)
     states = task_states(prog.system, tm, int(count), seed=seed)
-    if workers is None:  # forking a process that runs JAX may deadlock: one process then
-        workers = 1 if "jax" in sys.modules else available_cores()
+    if workers is None:  # forking a process that runs JAX may deadlock (the planner's are spawned)
+        workers = 1 if "jax" in sys.modules and not black_box else available_cores()
     n_workers = max(1, min(int(workers), len(states)))
+    progress = None if check_stop is None else (lambda _k: check_stop())
     # Under a budget: batches of a few states per worker, so that the overrun is one batch's time.
-    batch = len(states) if budget_seconds is None else max(1, 8 * n_workers)
+    batch = len(states) if budget_seconds is None or black_box else max(1, 8 * n_workers)
     results = []
     try:
         for lo in range(0, len(states), batch):
             if budget_seconds is not None and results and time.perf_counter() - start >= budget_seconds:
                 break
             chunk = states[lo:lo + batch]
-            report = run_oracle(prog, task, states=chunk, workers=min(n_workers, len(chunk)),
-                                time_limit=state_seconds,
-                                progress=None if check_stop is None else (lambda _k: check_stop()))
+            if black_box:
+                report = plan_states(prog, task, states=chunk, workers=min(n_workers, len(chunk)),
+                                     time_limit=state_seconds, progress=progress)
+            else:
+                report = run_oracle(prog, task, states=chunk, workers=min(n_workers, len(chunk)),
+                                    time_limit=state_seconds, progress=progress)
             results.extend(report.results)
-    except OracleUnsupported as err:
+    except (OracleUnsupported, PlannerUnsupported) as err:
+        who = "planner" if black_box else "oracle"
         return Witnesses(seed, len(states), np.zeros((0, n)), [], np.zeros(0, np.int64),
-                         time.perf_counter() - start, f"the oracle does not treat this task: {err}")
+                         time.perf_counter() - start, f"the {who} does not treat this task: {err}")
     kmin, kmax = tm.episode
-    usable = [r for r in results
-              if r.status == "solved" and r.actions is not None and 1 <= len(r.actions) <= kmax]
+    usable = [r for r in results if r.status == "solved" and r.actions is not None and r.steps is not None
+              and 1 <= max(len(r.actions), r.steps) <= kmax]
+    # A planned sequence may end before its reach: it coasts there on zero actions (the planner's
+    # replay, SequenceController), which the witness then spells out.
+    sequences = [np.concatenate([np.asarray(r.actions, float).reshape(len(r.actions), -1),
+                                 np.zeros((max(0, r.steps - len(r.actions)), prog.system.n_action))])
+                 for r in usable]
     rng = np.random.default_rng([seed, 1])
-    lengths = np.array([rng.integers(max(kmin, len(r.actions)), kmax + 1) for r in usable], dtype=np.int64)
+    lengths = np.array([rng.integers(max(kmin, len(q)), kmax + 1) for q in sequences], dtype=np.int64)
     starts = np.stack([np.asarray(r.x0, float) for r in usable]) if usable else np.zeros((0, n))
-    found = Witnesses(seed, len(results), starts, [np.asarray(r.actions, float) for r in usable], lengths,
-                      time.perf_counter() - start)
+    found = Witnesses(seed, len(results), starts, sequences, lengths, time.perf_counter() - start)
     if path is not None:
         from asap_dsl.runs import atomic_write_json
 
@@ -363,7 +396,7 @@ def add_demonstrations(prog, task: str, model, wrap: Callable, scaling, witnesse
     w = witnesses
     if w.reason is not None:
         return Demonstrations(states=w.states, seed=w.seed, oracle_seconds=w.oracle_seconds,
-                              seconds=w.oracle_seconds, reason=w.reason)
+                              seconds=w.oracle_seconds, reason=w.reason, searcher=searcher(prog))
     added = stored = rows = 0
     if w.sequences:
         def buffer_action(u: np.ndarray) -> np.ndarray:  # as SB3's _sample_action stores it
@@ -376,4 +409,4 @@ def add_demonstrations(prog, task: str, model, wrap: Callable, scaling, witnesse
     return Demonstrations(states=w.states, solved=int(w.solved), replays=len(w.sequences), added=added,
                           transitions=stored, rows=rows, cached=w.cached,
                           oracle_seconds=w.oracle_seconds, seconds=w.oracle_seconds + time.perf_counter() - start,
-                          seed=w.seed)
+                          seed=w.seed, searcher=searcher(prog))

@@ -65,7 +65,7 @@ def add_late(session, model, steps: int) -> Optional[dict]:
     said in the progress and recorded in the manifest (``late_demonstrations``). Returns what was
     added (:class:`~.demonstrations.Demonstrations` as a dict with ``at_step``), or None when a
     stop was requested meanwhile (the rule then stays due)."""
-    from .demonstrations import add_demonstrations, solve
+    from .demonstrations import add_demonstrations, searcher, solve
 
     rule: LateDemonstrations = session.late
     cfg = session.cfg
@@ -74,12 +74,14 @@ def add_late(session, model, steps: int) -> Optional[dict]:
         if session.stop.requested:
             raise _Stopped
 
-    session._tell(f"no validation has succeeded after {steps:,} steps: the oracle on {rule.states} initial states "
+    who = searcher(session.prog)
+    session._tell(f"no validation has succeeded after {steps:,} steps: the {who} on {rule.states} initial states "
                   f"of the run's own seed for demonstrations ...")
     try:
-        # One process: forking one that runs a learner (JAX's or torch's threads) is not safe.
-        witnesses = solve(session.prog, cfg.task, rule.states, cfg.seed, workers=1, state_seconds=LATE_STATE_SECONDS,
-                          check_stop=check_stop)
+        # The oracle in one process: forking one that runs a learner (JAX's or torch's threads) is
+        # not safe. The planner's workers are spawned.
+        witnesses = solve(session.prog, cfg.task, rule.states, cfg.seed, workers=None if who == "planner" else 1,
+                          state_seconds=LATE_STATE_SECONDS, check_stop=check_stop)
     except _Stopped:
         return None
     demos = add_demonstrations(session.prog, cfg.task, model, session.learner_env, session.scaling, witnesses,

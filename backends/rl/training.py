@@ -211,7 +211,7 @@ class _Session:
         """A new run's demonstration sequences from the oracle (:mod:`.demonstrations`), before
         the model is built (its workers are forked: not from a process running JAX). Their wall
         time counts as the run's, the time limit's included. None where the run has none."""
-        from .demonstrations import longest, solve, unavailable
+        from .demonstrations import longest, search_count, searcher, solve, unavailable
 
         if self.cfg.demonstrations <= 0:
             why = unavailable(self.prog, self.cfg.algo)
@@ -224,7 +224,8 @@ class _Session:
                 raise KeyboardInterrupt
 
         budget = self.cfg.demonstration_seconds
-        self._tell(f"demonstrations: the oracle on {self.cfg.demonstrations:,} initial states of the run's own seed"
+        count = search_count(self.prog, self.cfg.demonstrations, budget_seconds=budget)
+        self._tell(f"demonstrations: the {searcher(self.prog)} on {count:,} initial states of the run's own seed"
                    + ("" if budget is None else f", for at most {budget:.0f} s") + " ...")
         found = solve(self.prog, self.cfg.task, self.cfg.demonstrations, self.cfg.seed, budget_seconds=budget,
                       check_stop=check_stop)
