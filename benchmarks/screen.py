@@ -559,12 +559,16 @@ def main() -> int:
     ap.add_argument("--steps", type=int, default=20_000_000, help="a step budget (with --minutes 0: none)")
     args = ap.parse_args()
     prog = asap_dsl.load(args.spec)
+    # A screen compares variants over the same clock: no run ends early on the plateau rule
+    # (``--preset-set plateau=0.5`` puts it back).
+    presets.PRESETS["default"] = replace(presets.DEFAULT, plateau=None)
     if args.preset_set:
         fields = {}
         for item in args.preset_set:
             name, _, value = item.partition("=")
-            fields[name] = type(getattr(presets.DEFAULT, name))(json.loads(value))
-        presets.PRESETS["default"] = replace(presets.DEFAULT, **fields)
+            fields[name] = json.loads(value) if getattr(presets.DEFAULT, name) is None else \
+                type(getattr(presets.DEFAULT, name))(json.loads(value))
+        presets.PRESETS["default"] = replace(presets.PRESETS["default"], **fields)
     gamma = presets.discount(prog.task(args.task).model.deadline, presets.DEFAULT.horizon)
     stats: dict = {}
     more: dict = {}

@@ -51,3 +51,10 @@ def test_the_run_ends_on_the_plateau_as_finished_and_says_so(tiny, tmp_path, mon
     assert not any(earlier)  # it ended at the first validation that found the plateau
     assert any(f"the run ends at step {res.steps:,} of 80,000" in line for line in told), told
     assert res.evaluation is not None
+    # complete at fewer steps: the manifest says where, and a resume trains nothing more
+    from asap_dsl.runs import RunDir
+
+    m = RunDir(tmp_path / "run").read_manifest()
+    assert m["status"] == "finished" and m["plateau_step"] == res.steps == m["steps_done"]
+    again = train(str(tiny), "go", steps=80_000, seed=0, out=tmp_path / "run", resume=True, evaluate=False)
+    assert again.steps == res.steps and RunDir(tmp_path / "run").read_manifest()["steps_done"] == res.steps

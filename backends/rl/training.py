@@ -140,7 +140,7 @@ def _callbacks():
                 keep(self.model.replay_buffer, s.kept_rows)
             if s.schedule.due(n, s.seconds):
                 s.validate(self.model, n, self.logger)
-                if s.cfg.plateau is not None and plateau_reached(s.curves, n, s.cfg.plateau):
+                if s.plateaued(n):
                     s.plateau_step = n
                     return False
             if s.stop.signal is not None:
@@ -245,6 +245,21 @@ class _Session:
                                         self.validations)
         self._tell(demos.text())
         return demos.to_dict()
+
+    def plateaued(self, steps: int) -> bool:
+        """Whether the run ends on the plateau rule (:func:`.validation.plateau_reached`). A run that
+        has found nothing waits for the late demonstrations while they may still come, and once
+        they have come it is judged on the validations after them alone."""
+        if self.cfg.plateau is None:
+            return False
+        curves = self.curves
+        if self.late is not None:
+            if self.late.added is None:
+                if not any(rate > 0 for row in curves for rate in row["rates"].values()):
+                    return False
+            else:
+                curves = [r for r in curves if r["steps"] > self.late.added["at_step"]]
+        return plateau_reached(curves, steps, self.cfg.plateau)
 
     def _tell(self, line: str) -> None:
         note = getattr(self.progress, "note", None)  # optional in TrainProgress
@@ -534,7 +549,8 @@ def _run(prog: Program, cfg: TrainConfig, run: RunDir, stop: Interrupts, *, resu
         session = _Session(prog, cfg, run, progress, callbacks, stop)
         with run.guard():
             model = session.restore(ckpt)
-            if cfg.steps <= int(model.num_timesteps) and run.read_manifest()["status"] == "finished":
+            m = run.read_manifest()
+            if m["status"] == "finished" and (cfg.steps <= int(model.num_timesteps) or "plateau_step" in m):
                 return _finished(run, cfg, session, evaluate)
             run.update_manifest(status="running", config=cfg.to_dict(), error=None)
     else:
@@ -565,8 +581,10 @@ def _run(prog: Program, cfg: TrainConfig, run: RunDir, stop: Interrupts, *, resu
     try:
         with run.guard():
             status = session.learn(model)
+            # A run that ended on the plateau is complete at fewer steps: resume and tune read this.
+            ended = {} if session.plateau_step is None else {"plateau_step": int(session.plateau_step)}
             run.update_manifest(status=status, steps_done=int(model.num_timesteps),
-                                seconds=round(session.seconds, 3), best=session.best)
+                                seconds=round(session.seconds, 3), best=session.best, **ended)
     except KeyboardInterrupt:  # aborted by a third signal: the last checkpoint stands
         try:
             run.update_manifest(status="interrupted")

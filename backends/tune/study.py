@@ -307,7 +307,8 @@ class Tuning:
         return None
 
     def baseline_done(self) -> Optional[float]:
-        """The starting point's score when its run has finished (all its steps)."""
+        """The starting point's score when its run has finished (all its steps, or ended on the
+        plateau rule)."""
         from asap_dsl.runs import RunDir, RunError
 
         run = RunDir(self.directory / "start")
@@ -316,7 +317,8 @@ class Tuning:
         except RunError:
             return None
         best = m.get("best") or {}
-        if m.get("status") == "finished" and int(m.get("steps_done", 0)) >= self.setup.steps and "score" in best:
+        complete = int(m.get("steps_done", 0)) >= self.setup.steps or "plateau_step" in m
+        if m.get("status") == "finished" and complete and "score" in best:
             return float(best["score"])
         return None
 
