@@ -58,3 +58,14 @@ def test_the_run_ends_on_the_plateau_as_finished_and_says_so(tiny, tmp_path, mon
     assert m["status"] == "finished" and m["plateau_step"] == res.steps == m["steps_done"]
     again = train(str(tiny), "go", steps=80_000, seed=0, out=tmp_path / "run", resume=True, evaluate=False)
     assert again.steps == res.steps and RunDir(tmp_path / "run").read_manifest()["steps_done"] == res.steps
+
+
+def test_no_run_ends_on_the_plateau_before_its_share_of_the_steps(tiny, tmp_path, monkeypatch):
+    """A learner stuck for a while may still break out (the swimmer did): the rule waits."""
+    from asap_dsl.backends.rl.training import train
+
+    monkeypatch.setitem(presets.PRESETS, "default", replace(presets.DEFAULT, plateau=0.5, plateau_after=0.9,
+                                                             demonstrations=0, late_demonstrations=0))
+    res = train(str(tiny), "go", steps=30_000, seed=0, out=tmp_path / "run", evaluate=False)
+    assert res.status == "finished" and res.config.plateau_after == 0.9
+    assert res.steps >= 27_000, res.curves

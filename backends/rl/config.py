@@ -43,7 +43,7 @@ _TYPE_WORDS = {"str": "a text", "int": "a whole number", "bool": "true or false"
 
 # Fields added after sweeps were made, with the value that means "off": left out of a run's key
 # (:attr:`TrainConfig.key`) while off, so that a finished run is still found by a sweep.
-_KEY_WHEN_SET = {"plateau": None}
+_KEY_WHEN_SET = {"plateau": None, "plateau_after": None}
 
 
 @dataclass
@@ -77,6 +77,7 @@ class TrainConfig:
     demonstration_seconds: Optional[float] = None
     failed_starts: float = 0.0  # the share of new episodes started where an earlier one failed (:mod:`.curriculum`)
     plateau: Optional[float] = None  # the run ends once this latest share of its steps brought validation nothing
+    plateau_after: Optional[float] = None  # ... but not before this share of its steps
     # The learner's reward of a failure step (None: the reward's floor, as the task defines it).
     failure_reward: Optional[float] = None
     # Each state entry's scaling box (init, state or none: asap_dsl.observation); None in runs from
@@ -202,7 +203,8 @@ def resolve_config(prog, task: Optional[str] = None, *, algo: Optional[str] = No
         demonstrations=demos, late_demonstrations=late, observation_sources=sources,
         demonstration_share=p.demonstration_share, demonstration_repeat=p.demonstration_repeat,
         demonstration_seconds=p.demonstration_budget(time_limit), failed_starts=float(restarts),
-        failure_reward=_failure_reward(prog, t, model, hyper, p.failure_forever), plateau=p.plateau)
+        failure_reward=_failure_reward(prog, t, model, hyper, p.failure_forever), plateau=p.plateau,
+        plateau_after=p.plateau_after if p.plateau is not None else None)
 
 
 def _hyperparameters(preset: Mapping[str, Any], block: Mapping[str, Any], settings: Optional[Mapping[str, Any]],

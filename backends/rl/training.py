@@ -247,10 +247,10 @@ class _Session:
         return demos.to_dict()
 
     def plateaued(self, steps: int) -> bool:
-        """Whether the run ends on the plateau rule (:func:`.validation.plateau_reached`). A run that
-        has found nothing waits for the late demonstrations while they may still come, and once
+        """Whether the run ends on the plateau rule (:func:`.validation.plateau_reached`), once
+        ``plateau_after`` of its steps are done. A run that has found nothing waits for the late demonstrations while they may still come, and once
         they have come it is judged on the validations after them alone."""
-        if self.cfg.plateau is None:
+        if self.cfg.plateau is None or steps < (self.cfg.plateau_after or 0.0) * self.cfg.steps:
             return False
         curves = self.curves
         if self.late is not None:
