@@ -27,6 +27,27 @@ def patch_sbx_class(name: str) -> None:
     engines.SbxEngine.load = lambda self, algo, path, env=None: cls.load(str(path), env=env, device="cpu")
 
 
+def _sac_actor_loss(actor_state, qf_state, ent_coef_state, params, observations, noise_key, dropout_key):
+    """sbx SAC's own actor loss, ``(loss, log_prob, min_qf_pi)``, for the probes that add to it."""
+    import jax.numpy as jnp
+
+    dist = actor_state.apply_fn(params, observations)
+    actor_actions = dist.sample(seed=noise_key)
+    log_prob = dist.log_prob(actor_actions).reshape(-1, 1)
+    qf_pi = qf_state.apply_fn(qf_state.params, observations, actor_actions, rngs={"dropout": dropout_key})
+    min_qf_pi = jnp.min(qf_pi, axis=0)
+    ent_coef_value = ent_coef_state.apply_fn({"params": ent_coef_state.params})
+    return (ent_coef_value * log_prob - min_qf_pi).mean(), log_prob, min_qf_pi
+
+
+def _actor_step(actor_state, qf_state, key, actor_loss):
+    """One gradient step of the actor on ``actor_loss(params) -> (loss, entropy)``, as sbx returns it."""
+    import jax
+
+    (actor_loss_value, entropy), grads = jax.value_and_grad(actor_loss, has_aux=True)(actor_state.params)
+    return actor_state.apply_gradients(grads=grads), qf_state, actor_loss_value, key, entropy
+
+
 def patch_action_search(candidates: int, states: int, beta: float, local: float) -> None:
     """SAC's actor update with a search over actions: on ``states`` of the batch, ``candidates``
     actions (half uniform over [-1, 1]^m, half the mean action plus Gaussian noise of std ``local``)
@@ -62,21 +83,14 @@ def patch_action_search(candidates: int, states: int, beta: float, local: float)
         target = jax.lax.stop_gradient(target)
 
         def actor_loss(params):
-            dist = actor_state.apply_fn(params, observations)
-            actor_actions = dist.sample(seed=noise_key)
-            log_prob = dist.log_prob(actor_actions).reshape(-1, 1)
-            qf_pi = qf_state.apply_fn(qf_state.params, observations, actor_actions, rngs={"dropout": dropout_key})
-            min_qf_pi = jnp.min(qf_pi, axis=0)
-            ent_coef_value = ent_coef_state.apply_fn({"params": ent_coef_state.params})
-            sac_loss = (ent_coef_value * log_prob - min_qf_pi).mean()
+            sac_loss, log_prob, min_qf_pi = _sac_actor_loss(actor_state, qf_state, ent_coef_state, params,
+                                                             observations, noise_key, dropout_key)
             mean = actor_state.apply_fn(params, obs_s).mode()
             scale = jax.lax.stop_gradient(jnp.abs(min_qf_pi).mean())
             bc = (better * jnp.sum((mean - target) ** 2, axis=-1)).mean()
             return sac_loss + beta * scale * bc, -log_prob.mean()
 
-        (actor_loss_value, entropy), grads = jax.value_and_grad(actor_loss, has_aux=True)(actor_state.params)
-        actor_state = actor_state.apply_gradients(grads=grads)
-        return actor_state, qf_state, actor_loss_value, key, entropy
+        return _actor_step(actor_state, qf_state, key, actor_loss)
 
     class SearchSAC(base):
         pass
@@ -269,13 +283,8 @@ def patch_demo_bc(beta: float, q_filter: bool, batch: int = 256) -> dict:
             o, a = d_obs[idx], d_act[idx]
 
         def actor_loss(params):
-            dist = actor_state.apply_fn(params, observations)
-            actor_actions = dist.sample(seed=noise_key)
-            log_prob = dist.log_prob(actor_actions).reshape(-1, 1)
-            qf_pi = qf_state.apply_fn(qf_state.params, observations, actor_actions, rngs={"dropout": dropout_key})
-            min_qf_pi = jnp.min(qf_pi, axis=0)
-            ent_coef_value = ent_coef_state.apply_fn({"params": ent_coef_state.params})
-            loss = (ent_coef_value * log_prob - min_qf_pi).mean()
+            loss, log_prob, min_qf_pi = _sac_actor_loss(actor_state, qf_state, ent_coef_state, params,
+                                                        observations, noise_key, dropout_key)
             if have:
                 mean = actor_state.apply_fn(params, o).mode()
                 w = jnp.ones(batch)
@@ -288,9 +297,7 @@ def patch_demo_bc(beta: float, q_filter: bool, batch: int = 256) -> dict:
                 loss = loss + beta * scale * (w * jnp.sum((mean - a) ** 2, axis=-1)).mean()
             return loss, -log_prob.mean()
 
-        (actor_loss_value, entropy), grads = jax.value_and_grad(actor_loss, has_aux=True)(actor_state.params)
-        actor_state = actor_state.apply_gradients(grads=grads)
-        return actor_state, qf_state, actor_loss_value, key, entropy
+        return _actor_step(actor_state, qf_state, key, actor_loss)
 
     orig_model_class = engines.SbxEngine._model_class
     made: dict = {}

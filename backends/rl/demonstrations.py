@@ -326,9 +326,8 @@ def solve(prog, task: str, count: int, run_seed: int, *, workers: Optional[int] 
                                     time_limit=state_seconds, progress=progress)
             results.extend(report.results)
     except (OracleUnsupported, PlannerUnsupported) as err:
-        who = "planner" if black_box else "oracle"
         return Witnesses(seed, len(states), np.zeros((0, n)), [], np.zeros(0, np.int64),
-                         time.perf_counter() - start, f"the {who} does not treat this task: {err}")
+                         time.perf_counter() - start, f"the {searcher(prog)} does not treat this task: {err}")
     kmin, kmax = tm.episode
     usable = [r for r in results if r.status == "solved" and r.actions is not None and r.steps is not None
               and 1 <= max(len(r.actions), r.steps) <= kmax]
