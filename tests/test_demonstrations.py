@@ -90,7 +90,7 @@ def test_a_black_box_gets_the_planners_sequences_and_the_buffer_holds_their_repl
     from test_planner import CART, cart_minimum
 
     prog = asap_dsl.loads(CART % "user_sims:double_integrator", "cart.asap")
-    assert resolve_config(prog).demonstrations == 300  # as on known dynamics
+    assert resolve_config(prog).stall_demonstrations == 300  # as on known dynamics
     w = solve(prog, "reach", 4, 0, workers=2, state_seconds=0.5, cache=False)
     assert w.reason is None and w.solved == len(w.sequences) >= 3
     for x0, seq in zip(w.starts, w.sequences):  # reached, and no later than the minimum's bound allows
@@ -117,7 +117,8 @@ def test_demonstration_states_are_not_evaluation_or_validation_states(rail):
 def test_who_gets_demonstrations(rail):
     from asap_dsl.backends.rl.config import ConfigError, resolve_config
 
-    assert resolve_config(rail).demonstrations == 300  # the default's longest manoeuvres (test_curriculum.py)
+    assert resolve_config(rail).demonstrations == 0  # the default's come when the run stalls (below)
+    assert resolve_config(rail).stall_demonstrations == 300
     assert resolve_config(rail, preset="paper").demonstrations == 0
     assert resolve_config(rail, demonstrations=12).demonstrations == 12
     assert resolve_config(rail, algo="td3", demonstrations=12, preset="paper").demonstrations == 12
@@ -195,6 +196,21 @@ def test_the_late_rule_is_the_default_presets_unless_a_run_chooses_its_demonstra
     assert resolve_config(rail, algo="ppo").late_demonstrations == 0  # no replay buffer: no rule
 
 
+def test_the_presets_demonstrations_wait_for_a_stall_unless_a_run_asks_for_its_own(rail):
+    """The default's demonstrations come once validation stalls (one state per 800 steps, at most
+    300), not at the start; ``--demonstrations N`` puts N at the start and no rule."""
+    from asap_dsl.backends.rl.config import resolve_config
+
+    cfg = resolve_config(rail, steps=80_000)
+    assert (cfg.demonstrations, cfg.stall_demonstrations) == (0, 100)
+    assert resolve_config(rail).stall_demonstrations == 300
+    assert (resolve_config(rail, demonstrations=4).demonstrations, resolve_config(rail, demonstrations=4).stall_demonstrations) == (4, 0)
+    assert resolve_config(rail, demonstrations=0).stall_demonstrations == 0
+    assert resolve_config(rail, preset="paper").stall_demonstrations == 0
+    assert resolve_config(rail, algo="ppo").stall_demonstrations == 0
+    assert "stall_demonstrations" not in resolve_config(rail, preset="paper").key  # runs made before keep their key
+
+
 def test_the_late_rule_fires_once_when_nothing_has_succeeded_after_its_share_of_the_budget():
     from asap_dsl.backends.rl.exploration import LateDemonstrations
 
@@ -207,6 +223,23 @@ def test_the_late_rule_fires_once_when_nothing_has_succeeded_after_its_share_of_
     assert not LateDemonstrations(0, 0.1).due([zero], 900, 1000, 1.0, None)
     rule.added = {"added": 3}
     assert not rule.due([zero], 900, 1000, 1.0, None)          # once per run
+
+
+def test_the_rule_fires_on_a_stall_once_validation_has_stopped_improving():
+    from asap_dsl.backends.rl.exploration import NOTHING, STALLED, LateDemonstrations
+
+    def rows(*scores):
+        return [{"steps": 100 * (i + 1), "score": s, "rates": {5: s, 10: s}} for i, s in enumerate(scores)]
+
+    rule = LateDemonstrations(8, 0.1, 300, 0.5)
+    assert rule.waits_for_stall
+    assert rule.due(rows(0.0, 0.0), 200, 10_000, 1.0, None) is None  # nothing found, but not 10% of the budget
+    assert rule.due(rows(0.0, 0.0, 0.0), 1000, 10_000, 1.0, None) == NOTHING
+    assert rule.due(rows(0.2, 0.5, 0.6), 300, 10_000, 1.0, None) is None   # still improving
+    assert rule.due(rows(0.2, 0.5, 0.6, 0.6, 0.6, 0.6), 600, 10_000, 1.0, None) == STALLED  # flat for half its steps
+    assert LateDemonstrations(8, 0.1).due(rows(0.2, 0.5, 0.6, 0.6, 0.6, 0.6), 600, 10_000, 1.0, None) is None
+    rule.added = {"added": 3, "why": STALLED}
+    assert not rule.waits_for_stall and rule.due(rows(0.2, 0.5, 0.6, 0.6, 0.6, 0.6), 600, 10_000, 1.0, None) is None
 
 
 def test_a_run_that_finds_nothing_gets_the_oracles_sequences_once(tmp_path, capsys, monkeypatch):
@@ -235,9 +268,8 @@ def test_a_run_that_finds_nothing_gets_the_oracles_sequences_once(tmp_path, caps
     assert code == 0 and "no validation has succeeded after" in err, err
     late = RunDir(out).read_manifest()["late_demonstrations"]
     assert 300 <= late["at_step"] < STEPS and late["states"] == 8 and late["added"] == 8 and late["oracle_seconds"] > 0
-    first = RunDir(out).read_manifest()["demonstrations"]  # the preset's longest: one state per 800 steps
-    assert first["states"] == STEPS // 800 and first["replays"] % 4 == 0
-    slots = -(-late["transitions"] // 2) + -(-first["transitions"] // 2)
+    assert late["why"] == "nothing found" and "demonstrations" not in RunDir(out).read_manifest()  # none at the start
+    slots = -(-late["transitions"] // 2)
     # the run's own steps after them. It may end early on the plateau (nothing learns without
     # updates): a callback that stops the run does so before stable-baselines3 stores that step.
     def done() -> int:
@@ -255,6 +287,31 @@ def test_a_run_that_finds_nothing_gets_the_oracles_sequences_once(tmp_path, caps
                          "--out", tmp_path / "near")
     assert code == 0 and "no validation has succeeded" not in err
     assert "late_demonstrations" not in RunDir(tmp_path / "near").read_manifest()
+
+
+def test_a_run_whose_validation_stalls_gets_the_oracles_longest_sequences_once(tmp_path, capsys, monkeypatch):
+    """Validation succeeds from the start and never moves (no updates): the rule fires on the
+    stall, with the preset's share of the states (one per 800 steps), the longest fifth of their
+    sequences four times each, recorded in the manifest; the run is not ended on its plateau
+    before that, and a resume does not fire it again."""
+    near = RAIL.replace("init [-1.5, 1.5]", "init [0.8, 1.6]").replace(
+        "tolerances 20, 10, 5", "tolerances 20, 10, 5\n  train { learning_starts = 10000 }")
+    spec = tmp_path / "near.asap"
+    spec.write_text(near)
+    out = tmp_path / "near"
+    from asap_dsl.backends.rl import validation
+
+    monkeypatch.setattr(validation, "BUDGET", 1.0)  # enough validations in a fast run (see above)
+    STEPS = 8000
+    code, _, err = asapc(capsys, "train", spec, "--steps", STEPS, "--envs", 2, "--engine", "sb3", "--no-eval",
+                         "--out", out)
+    assert code == 0 and "validation stopped improving after" in err, err
+    m = RunDir(out).read_manifest()
+    late = m["late_demonstrations"]
+    assert late["why"] == "stalled" and late["states"] == STEPS // 800 and late["replays"] % 4 == 0
+    assert late["at_step"] < m["steps_done"] and m.get("plateau_step", STEPS) > late["at_step"]
+    code, _, err = asapc(capsys, "train", spec, "--out", out, "--resume", "--steps", STEPS + 600, "--no-eval")
+    assert code == 0 and "validation stopped improving after" not in err
 
 
 def test_a_second_run_of_the_same_seed_reads_the_sequences_back_and_is_charged_their_time(rail, monkeypatch):

@@ -43,8 +43,9 @@ def fill_train_subparser(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--engine", choices=ENGINES, help="what trains: sbx (JAX) or sb3 (stable-baselines3 on torch; "
                    "default: the preset's engine where it has the algorithm)")
     p.add_argument("--demonstrations", type=natural_int, metavar="N",
-                   help="initial states whose oracle action sequences go into the replay buffer before learning "
-                        "(SAC, TD3, DDPG on known dynamics; default: the preset's; 0: none)")
+                   help="initial states whose oracle (or, on a black box, planner) action sequences go into the "
+                        "replay buffer before learning (SAC, TD3, DDPG; default: the preset's, once validation "
+                        "stalls or finds nothing; 0: none)")
     p.add_argument("--failed-starts", type=share_float, metavar="P",
                    help="the share of new training episodes that start where an earlier one did not reach "
                         "(default: the preset's, 0.5; 0: none)")

@@ -43,7 +43,7 @@ _TYPE_WORDS = {"str": "a text", "int": "a whole number", "bool": "true or false"
 
 # Fields added after sweeps were made, with the value that means "off": left out of a run's key
 # (:attr:`TrainConfig.key`) while off, so that a finished run is still found by a sweep.
-_KEY_WHEN_SET = {"plateau": None, "plateau_after": None}
+_KEY_WHEN_SET = {"plateau": None, "plateau_after": None, "stall_demonstrations": 0}
 
 
 @dataclass
@@ -70,6 +70,7 @@ class TrainConfig:
     time_limit: Optional[float] = None  # seconds of training; the run ends (finished) when they are spent
     demonstrations: int = 0   # initial states whose oracle sequences fill the replay buffer first (:mod:`.demonstrations`)
     late_demonstrations: int = 0  # ... or later, when no validation has succeeded (:mod:`.exploration`)
+    stall_demonstrations: int = 0  # ... or when validation has stopped improving (:mod:`.exploration`)
     # Of the demonstrations' sequences the longest this share is kept, each this many times, the
     # oracle searching for at most these seconds (None: no bound but its time per state).
     demonstration_share: float = 1.0
@@ -170,6 +171,9 @@ def resolve_config(prog, task: Optional[str] = None, *, algo: Optional[str] = No
     if time_limit is not None and not (time_limit > 0 and time_limit < float("inf")):
         raise ConfigError(f"the time limit must be a positive number of seconds; got {time_limit}")
     demos = _demonstrations(prog, algo, demonstrations, p.demonstration_states(total))
+    stall = 0
+    if demonstrations is None and p.demonstrations_when == "stall":  # the preset's, when the run stalls
+        demos, stall = 0, demos
     restarts = p.failed_starts if failed_starts is None else failed_starts
     if isinstance(restarts, bool) or not isinstance(restarts, (int, float)) or not 0.0 <= restarts <= 1.0:
         raise ConfigError(f"failed starts must be a share between 0 and 1; got {restarts!r}")
@@ -179,8 +183,8 @@ def resolve_config(prog, task: Optional[str] = None, *, algo: Optional[str] = No
         # Memory for what the run can fill, no more (the paper's buffer never drops a sample);
         # demonstrations are at most one episode per state.
         hyper["buffer_size"] = int(min(int(hyper.get("buffer_size", 1_000_000)),
-                                       total + envs + (math.ceil(demos * max(1.0, p.demonstration_share
-                                                                             * p.demonstration_repeat)) + late)
+                                       total + envs + (math.ceil((demos + stall) * max(1.0, p.demonstration_share
+                                                                                       * p.demonstration_repeat)) + late)
                                        * (t.episode[1] + 1)))
     elif algo == "ppo":
         rollout = int(hyper.get("n_steps", 2048)) * envs
@@ -200,7 +204,7 @@ def resolve_config(prog, task: Optional[str] = None, *, algo: Optional[str] = No
         validation_episodes=validation_states(total, p.validation_episodes), validation_seed=VALIDATION_SEED,
         validate_every=every,
         eval_episodes=episodes, hyper=hyper, time_limit=None if time_limit is None else float(time_limit),
-        demonstrations=demos, late_demonstrations=late, observation_sources=sources,
+        demonstrations=demos, late_demonstrations=late, stall_demonstrations=stall, observation_sources=sources,
         demonstration_share=p.demonstration_share, demonstration_repeat=p.demonstration_repeat,
         demonstration_seconds=p.demonstration_budget(time_limit), failed_starts=float(restarts),
         failure_reward=_failure_reward(prog, t, model, hyper, p.failure_forever), plateau=p.plateau,

@@ -51,7 +51,8 @@ class Preset:
     validations: int          # periodic validations over a run
     algos: Mapping[str, Mapping[str, Any]] = field(default_factory=dict)
     engine: str = "sb3"       # the training engine where it has the algorithm (stable-baselines3 otherwise)
-    demonstrations: int = 0   # initial states whose oracle sequences go into the replay buffer first
+    demonstrations: int = 0   # initial states whose oracle sequences go into the replay buffer ...
+    demonstrations_when: str = "start"  # ... first ("start") or once validation stalls ("stall", :mod:`.exploration`)
     # Sparse goals (:mod:`.exploration`): this many states' oracle sequences go into the replay
     # buffer at the first validation after ``late_after`` of the budget when none has succeeded yet.
     late_demonstrations: int = 0
@@ -127,7 +128,11 @@ PAPER = Preset(
     demonstrations=0,  # the paper learns from its own samples only
 )
 
-_FAST_OFF = {"buffer_size": 1_000_000, "gamma": 0.99, "tau": 0.005, "train_freq": 1, "gradient_steps": 1,
+# Four vector steps, then four gradient steps in one compiled call: the same updates per sample as
+# one and one, at 1.5x the steps per second (one dispatch and one buffer draw per four updates);
+# bicycle and attitude reached the same validation in 4 minutes (docs/training.md, "Four gradient
+# steps at a time").
+_FAST_OFF = {"buffer_size": 1_000_000, "gamma": 0.99, "tau": 0.005, "train_freq": 4, "gradient_steps": 4,
              "learning_starts": 1000, "batch_size": 256, "net_arch": [64, 64], "learning_rate": 1e-3}
 
 DEFAULT = Preset(
@@ -156,8 +161,13 @@ DEFAULT = Preset(
     # Measured (docs/training.md, "Failed starts and long manoeuvres"): 64 states' sequences changed
     # neither bicycle nor attitude; the longest fifth of 300 states' sequences, four times each,
     # with half the new episodes from failed starts, brought both 3-5 points closer to their
-    # ceilings. The oracle's time counts as the run's: at most 3 minutes, 15% of a time limit.
+    # ceilings in one 20-minute run; the swimmer's (the planner's) took it from 18% to 59% within
+    # 30 steps. From the start they cost the DC motor time (within 5 points of its ceiling in 54 s
+    # against 12 s without them, benchmarks/train.py): they come when validation stalls
+    # (:mod:`.exploration`). The oracle's time counts as the run's: at most 3 minutes, 15% of a
+    # time limit.
     demonstrations=300,
+    demonstrations_when="stall",
     demonstration_share=0.2,
     demonstration_repeat=4,
     demonstration_steps=800,  # 300 states from 240k steps: a run of the default budget has them all

@@ -17,6 +17,8 @@ from gymnasium import spaces
 
 from asap_dsl.checker_common import ALGORITHMS
 
+from .presets import OFF_POLICY
+
 __all__ = ["PolicyController", "Scaling", "ScaledVecEnv", "build_model", "load_model"]
 
 
@@ -178,6 +180,12 @@ def model_kwargs(algo: str, action_space: spaces.Box, settings: dict[str, Any], 
         half = (action_space.high - action_space.low) / 2.0
         kw["action_noise"] = NormalActionNoise(np.zeros(m), float(noise) * half.astype(np.float64))
     kw["policy_kwargs"] = policy
+    if algo in OFF_POLICY:
+        from .buffers import default_buffer
+
+        buffer = default_buffer(kw)
+        if buffer is not None:
+            kw["replay_buffer_class"] = buffer
     return kw
 
 

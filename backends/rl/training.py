@@ -186,9 +186,11 @@ class _Session:
         # A time-limited run validates on the clock too (:mod:`.validation`).
         self.schedule = Schedule(cfg.validate_every, None if cfg.time_limit is None else cfg.time_limit / self.validations)
         self.seconds_before = 0.0
-        # The default preset's rule for sparse goals (:mod:`.exploration`), None where there is none.
-        self.late = (LateDemonstrations(cfg.late_demonstrations, get_preset(cfg.preset).late_after)
-                     if cfg.late_demonstrations > 0 else None)
+        # The default preset's demonstrations when the run needs them (:mod:`.exploration`), None
+        # where there are none.
+        self.late = (LateDemonstrations(cfg.late_demonstrations, get_preset(cfg.preset).late_after,
+                                        cfg.stall_demonstrations, cfg.plateau or get_preset(cfg.preset).plateau)
+                     if cfg.late_demonstrations > 0 or cfg.stall_demonstrations > 0 else None)
         self.stop = stop if stop is not None else Interrupts()
         self.kept_rows = 0  # the demonstrations' rows of the replay buffer, never overwritten
         self.time_up = False
@@ -248,14 +250,15 @@ class _Session:
 
     def plateaued(self, steps: int) -> bool:
         """Whether the run ends on the plateau rule (:func:`.validation.plateau_reached`), once
-        ``plateau_after`` of its steps are done. A run that has found nothing waits for the late demonstrations while they may still come, and once
-        they have come it is judged on the validations after them alone."""
+        ``plateau_after`` of its steps are done. A run waits for the late demonstrations while they
+        may still come (it has found nothing, or a stall would bring them), and once they have come
+        it is judged on the validations after them alone."""
         if self.cfg.plateau is None or steps < (self.cfg.plateau_after or 0.0) * self.cfg.steps:
             return False
         curves = self.curves
         if self.late is not None:
             if self.late.added is None:
-                if not any(rate > 0 for row in curves for rate in row["rates"].values()):
+                if self.late.waits_for_stall or not any(rate > 0 for row in curves for rate in row["rates"].values()):
                     return False
             else:
                 curves = [r for r in curves if r["steps"] > self.late.added["at_step"]]
@@ -296,10 +299,10 @@ class _Session:
         self.schedule.done(int(steps), self.seconds, time.perf_counter() - t0)
         if self.progress is not None:
             self.progress.validated(row)
-        if (self.late is not None and not self.time_up and steps < self.cfg.steps  # not after the last
-                and self.late.due(self.curves, int(steps), self.cfg.steps, self.seconds,
-                                  self.cfg.time_limit)):
-            add_late(self, model, int(steps))
+        why = (None if self.late is None or self.time_up or steps >= self.cfg.steps  # not after the last
+               else self.late.due(self.curves, int(steps), self.cfg.steps, self.seconds, self.cfg.time_limit))
+        if why is not None:
+            add_late(self, model, int(steps), why)
         return row
 
     # -- checkpoints
