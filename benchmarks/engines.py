@@ -45,7 +45,9 @@ def _child(args) -> dict:
     settings = None
     variant, _, step = args.child.partition("@")
     if variant == "before16":
-        variant, step, settings = "sb3", "numpy", {"train_freq": 1, "gradient_steps": 1}
+        from train import BEFORE16_SETTINGS  # benchmarks/train.py: the one definition of that variant
+
+        variant, step, settings = "sb3", "numpy", BEFORE16_SETTINGS
     engine, _, threads = variant.partition(":")
     if step:
         os.environ["ASAP_ENGINE"] = step  # make_vec_env's step: native, numpy or auto

@@ -9,7 +9,8 @@ at every tolerance gives the variant's time; the script prints the median times 
 their ratios against ``default``. This measures, it selects nothing: no model is kept.
 
 The variants: ``default`` and ``paper`` (the presets as they are), and ``before16``: the default
-preset as issue 16 found it (stable-baselines3 on torch, the numpy step, no demonstrations), and
+preset as issue 16 found it (stable-baselines3 on torch, the numpy step, one gradient step after
+every vector step, no demonstrations), and
 ``no-demos`` (the default without the oracle's demonstrations, to see what they bring). The
 bars of issue 16: ``default`` at least 3x sooner than ``before16`` and 10x sooner than ``paper``
 (a variant that never gets there counts as ``--limit``, so its ratio is a lower bound).
@@ -40,9 +41,12 @@ from asap_dsl.sampling import EVAL_SEED, task_states
 SPECS = Path(__file__).resolve().parents[1] / "specs"
 
 
-# variant -> (preset, training engine, step engine, demonstrations); None: the preset's own
-VARIANTS = {"default": ("default", None, None, None), "paper": ("paper", None, None, None),
-            "before16": ("default", "sb3", "numpy", 0), "no-demos": ("default", None, None, 0)}
+# The default preset's settings as issue 16 found it: one gradient step after every vector step.
+BEFORE16_SETTINGS = {"train_freq": 1, "gradient_steps": 1}
+# variant -> (preset, training engine, step engine, demonstrations, settings); None: the preset's own
+VARIANTS = {"default": ("default", None, None, None, None), "paper": ("paper", None, None, None, None),
+            "before16": ("default", "sb3", "numpy", 0, BEFORE16_SETTINGS),
+            "no-demos": ("default", None, None, 0, None)}
 BARS = {"before16": 3.0, "paper": 10.0}
 
 
@@ -53,7 +57,8 @@ def _time_to_ceiling(spec: Path, task: str, variant: str, seed: int, ceiling: di
     from asap_dsl.backends.rl.sb3 import PolicyController, Scaling
     from asap_dsl.backends.rl.config import resolve_config
 
-    preset, engine, step, demos = VARIANTS[variant]
+    preset, engine, step, demos, own = VARIANTS[variant]
+    settings = {**(own or {}), **(settings or {})} or None
     if step:
         os.environ["ASAP_ENGINE"] = step
     else:

@@ -57,3 +57,13 @@ def test_off_policy_models_are_built_with_it_unless_the_settings_choose(engine, 
     from asap_dsl.backends.rl.sb3 import model_kwargs
 
     assert "replay_buffer_class" not in model_kwargs("ppo", spaces.Box(-1, 1, (1,)), {}, engine)
+
+
+def test_a_buffer_chosen_by_the_settings_or_n_step_returns_is_left_alone():
+    from stable_baselines3.common.buffers import ReplayBuffer
+
+    from asap_dsl.backends.rl.buffers import FlatReplayBuffer, default_buffer
+
+    assert default_buffer({}) is FlatReplayBuffer and default_buffer({"n_steps": 1}) is FlatReplayBuffer
+    assert default_buffer({"replay_buffer_class": ReplayBuffer}) is None
+    assert default_buffer({"n_steps": 3}) is None  # sbx's n-step buffer
