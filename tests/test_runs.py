@@ -10,6 +10,7 @@ import json
 import os
 import shutil
 import subprocess
+import zipfile
 from pathlib import Path
 
 import pytest
@@ -138,7 +139,12 @@ def test_a_damaged_run_is_one_sentence(base, run, capsys, case):
 
 
 def test_a_model_swapped_in_or_deleted_is_refused(base, run, capsys):
-    shutil.copy(run / "checkpoint" / "model.zip", run / "model.zip")  # a real model, not this run's best
+    # A real, loadable model with other bytes: the last checkpoint can be the best model itself
+    # (byte for byte when both were saved within the zip format's two-second clock), so it is
+    # copied with a comment of its own.
+    shutil.copy(run / "checkpoint" / "model.zip", run / "model.zip")
+    with zipfile.ZipFile(run / "model.zip", "a") as z:
+        z.comment = b"swapped in"
     code, _, err = asapc(capsys, "eval", run, "--no-oracle", "--episodes", 10)
     assert code == 1
     _one_sentence(err, "model.zip: not the model this run wrote", "refused")
