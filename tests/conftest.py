@@ -84,6 +84,14 @@ def asapc(capsys, *argv):
     return code, out, err
 
 
+def completed(res, steps: int) -> bool:
+    """A training finished: all ``steps``, or fewer where the default's plateau rule ended it
+    (validation stopped improving: a complete run, as resume and tune read it)."""
+    from asap_dsl.runs import RunDir
+
+    return res.status == "finished" and (res.steps >= steps or "plateau_step" in RunDir(res.run_dir).read_manifest())
+
+
 def one_line_error(err: str) -> str:
     """The one line ``asapc: error: ...`` that ``err`` must be, no traceback."""
     assert "Traceback" not in err, err

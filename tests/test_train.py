@@ -16,7 +16,7 @@ import pytest
 import asap_dsl
 from asap_dsl.checker_common import ALGORITHMS
 from asap_dsl.runs import RunDir
-from conftest import RAIL, asapc, one_line_error
+from conftest import RAIL, asapc, completed, one_line_error
 
 # A one-dimensional plant: fast to simulate and to learn something on.
 TINY = RAIL
@@ -47,7 +47,7 @@ def test_presets_cover_every_algorithm_of_the_language():
 def test_each_algorithm_trains_and_evaluates(tiny, tmp_path, algo):
     out = tmp_path / "run"
     res = asap_dsl.train(tiny, algo=algo, steps=300, n_envs=2, out=out, settings=_settings(algo), eval_episodes=50)
-    assert res.status == "finished" and res.steps >= 300
+    assert completed(res, 300)
     run = RunDir(out)
     manifest = run.read_manifest()
     assert manifest["status"] == "finished" and manifest["steps_done"] == res.steps
