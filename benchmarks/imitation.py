@@ -13,7 +13,7 @@ the policy runs from ``--per-round`` fresh initial states, the oracle solves fro
 states it visited (before its reach or failure), their paths join the labels, and the fit goes on.
 
     .venv/bin/python benchmarks/imitation.py specs/bicycle.asap --task reach_avoid --train 4000 \\
-        [--test 300] [--paths 1000] [--width 256] [--depth 2] [--epochs 200] [--rounds 5] [--workers 2]
+        [--test 300] [--paths 1000] [--width 256] [--depth 2] [--bins 21] [--epochs 200] [--rounds 5] [--workers 2]
 
 The oracle's paths are kept in ``--cache`` (a pickle per spec, task and counts; default under
 ``runs/imitation``), so that other fits of the same labels do not solve again.
@@ -50,20 +50,33 @@ def labels(results) -> tuple[np.ndarray, np.ndarray]:
 
 
 class Policy:
-    """An MLP from the standardised state to actions in the bounds (a controller of the rollout)."""
+    """An MLP from the standardised state to actions in the bounds (a controller of the rollout):
+    a tanh output fitted by squared error, or with ``bins`` a categorical head per action (``bins``
+    levels across the bounds, cross-entropy, the most likely level acted on), which cannot average
+    two modes of the optimum into an action that is neither."""
 
-    def __init__(self, n: int, m: int, width: int, depth: int, mean, std, low, high):
+    def __init__(self, n: int, m: int, width: int, depth: int, mean, std, low, high, bins: int = 0):
         layers: list = [torch.nn.Linear(n, width), torch.nn.ReLU()]
         for _ in range(depth - 1):
             layers += [torch.nn.Linear(width, width), torch.nn.ReLU()]
-        self.net = torch.nn.Sequential(*layers, torch.nn.Linear(width, m), torch.nn.Tanh())
+        head = [torch.nn.Linear(width, m * bins)] if bins else [torch.nn.Linear(width, m), torch.nn.Tanh()]
+        self.net = torch.nn.Sequential(*layers, *head)
+        self.m, self.bins = m, bins
         self.mean, self.std, self.low, self.high = mean, std, low, high
 
     def inputs(self, x: np.ndarray) -> torch.Tensor:
         return torch.tensor((x - self.mean) / self.std, dtype=torch.float32)
 
     def targets(self, u: np.ndarray) -> torch.Tensor:
-        return torch.tensor(2 * (u - self.low) / (self.high - self.low) - 1, dtype=torch.float32).clamp(-1, 1)
+        z = np.clip((u - self.low) / (self.high - self.low), 0.0, 1.0)  # 0..1 across the bounds
+        if self.bins:
+            return torch.tensor(np.rint(z * (self.bins - 1)), dtype=torch.int64)
+        return torch.tensor(2 * z - 1, dtype=torch.float32)
+
+    def loss(self, x: torch.Tensor, u: torch.Tensor) -> torch.Tensor:
+        if self.bins:
+            return torch.nn.functional.cross_entropy(self.net(x).reshape(-1, self.bins), u.reshape(-1))
+        return ((self.net(x) - u) ** 2).mean()
 
     def fit(self, x: np.ndarray, u: np.ndarray, epochs: int, batch: int = 512) -> float:
         xt, ut = self.inputs(x), self.targets(u)
@@ -74,7 +87,7 @@ class Policy:
             perm = torch.randperm(len(xt))
             for i in range(0, len(xt), batch):
                 j = perm[i:i + batch]
-                loss = ((self.net(xt[j]) - ut[j]) ** 2).mean()
+                loss = self.loss(xt[j], ut[j])
                 opt.zero_grad()
                 loss.backward()
                 opt.step()
@@ -86,8 +99,9 @@ class Policy:
 
     def act(self, obs: np.ndarray, states: np.ndarray, t: int) -> np.ndarray:
         with torch.no_grad():
-            a = self.net(self.inputs(states)).numpy()
-        return self.low + (a + 1) / 2 * (self.high - self.low)
+            out = self.net(self.inputs(states)).numpy()
+        z = out.reshape(len(states), self.m, self.bins).argmax(-1) / (self.bins - 1) if self.bins else (out + 1) / 2
+        return self.low + z * (self.high - self.low)
 
 
 def main() -> int:
@@ -100,6 +114,7 @@ def main() -> int:
     ap.add_argument("--width", type=int, default=256)
     ap.add_argument("--depth", type=int, default=2)
     ap.add_argument("--epochs", type=int, default=200)
+    ap.add_argument("--bins", type=int, default=0, help="a categorical head of BINS levels per action (0: tanh)")
     ap.add_argument("--rounds", type=int, default=0)
     ap.add_argument("--per-round", type=int, default=300)
     ap.add_argument("--per-path", type=int, default=3)
@@ -129,7 +144,7 @@ def main() -> int:
     print(f"{len(x):,} labels from {len(train[:args.paths])} paths; the oracle on the {args.test} test states: {ceiling}", flush=True)
     sys_ = judge.core.system
     policy = Policy(x.shape[1], u.shape[1], args.width, args.depth, x.mean(0), x.std(0) + 1e-6,
-                    sys_.action_low, sys_.action_high)
+                    sys_.action_low, sys_.action_high, args.bins)
 
     def report(tag: str, t0: float) -> None:
         r = judge.run(policy)
@@ -138,7 +153,8 @@ def main() -> int:
 
     t0 = time.time()
     policy.fit(x, u, args.epochs)
-    report(f"fitted {args.width}x{args.depth}, {args.epochs} epochs", t0)
+    head = f"{args.bins} levels per action" if args.bins else "tanh"
+    report(f"fitted {args.width}x{args.depth} ({head}), {args.epochs} epochs", t0)
     rng = np.random.default_rng(0)
     for k in range(args.rounds):
         starts = task_states(prog.system, task, args.per_round, seed=ROUND_SEED + k)
