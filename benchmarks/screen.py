@@ -27,6 +27,10 @@ process only, so that an idea can be judged in four minutes before it is built p
   starts go into the replay buffer as the run goes (:func:`patch_failed_demos`).
 - ``--demo-bc BETA,FILTER``: SAC's actor also imitates the stored demonstrations (:func:`patch_demo_bc`).
 - ``--observe-rho``: the observation also holds each atom's robustness (:func:`patch_observe_rho`).
+- ``--demo-paths FILE``: the run's demonstrations are every path of ``benchmarks/imitation.py``'s
+  oracle cache (its training states, seed 31337; the oracle's seconds outside the clock), with
+  ``--demonstrations N`` the first N of them (:func:`patch_demo_paths`); with ``--demo-bc`` the
+  actor imitates all of them.
 - ``--steps N`` with ``--minutes 0``: a step budget instead of the clock (a loaded machine).
 - ``--preset-set NAME=VALUE`` (repeatable): a field of the default preset for this process, to
   screen a rule that is built but off (``failed_starts=0.25``, ``demonstration_repeat=2``).
@@ -236,6 +240,25 @@ def patch_failed_demos(prog, task: str, every: int, states: int, repeat: int, st
     return FailedDemos(), stats
 
 
+def patch_demo_paths(path: str, deadline: int) -> None:
+    """The run's demonstration search replaced by the paths in ``path`` (a pickle of
+    benchmarks/imitation.py: the oracle's results on its training and test states; the training
+    states' are used, the first ``count`` the run asks for), each replayed once over the deadline."""
+    import pickle
+
+    from asap_dsl.backends.rl import demonstrations
+
+    train, _ = pickle.loads(Path(path).read_bytes())
+
+    def solve(prog, task, count, run_seed, **_):
+        done = [r for r in train[:int(count)] if r.actions is not None and len(r.actions) > 0]
+        return demonstrations.Witnesses(31337, int(count), np.stack([r.x0 for r in done]),
+                                        [np.asarray(r.actions, float) for r in done],
+                                        np.full(len(done), deadline, np.int64))
+
+    demonstrations.solve = solve
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("spec")
@@ -254,6 +277,7 @@ def main() -> int:
     ap.add_argument("--preset-set", action="append", default=[], metavar="NAME=VALUE")
     ap.add_argument("--action-search", help="CANDIDATES,STATES,BETA,LOCAL")
     ap.add_argument("--observe-rho", action="store_true")
+    ap.add_argument("--demo-paths", help="an oracle cache of benchmarks/imitation.py")
     ap.add_argument("--return-bound", action="store_true")
     ap.add_argument("--failed-demos", help="EVERY,STATES,REPEAT,SECONDS")
     ap.add_argument("--demo-bc", help="BETA,FILTER (FILTER 1: only where the critics prefer the oracle's action)")
@@ -286,6 +310,8 @@ def main() -> int:
         more = patch_return_bound(gamma, float(cfg.failure_reward))
     if args.observe_rho:
         patch_observe_rho(prog, args.task)
+    if args.demo_paths:
+        patch_demo_paths(args.demo_paths, int(prog.task(args.task).model.deadline))
     if args.demo_bc:
         beta, filt = args.demo_bc.split(",")
         more["demo_bc"] = patch_demo_bc(float(beta), bool(int(filt)))
