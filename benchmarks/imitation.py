@@ -142,9 +142,9 @@ def main() -> int:
     tols = sorted(task.tolerances, reverse=True)
     ceiling = {T: round(100 * float(np.mean([r.steps is not None and r.steps <= T for r in test])), 1) for T in tols}
     print(f"{len(x):,} labels from {len(train[:args.paths])} paths; the oracle on the {args.test} test states: {ceiling}", flush=True)
-    sys_ = judge.core.system
+    system = judge.core.system
     policy = Policy(x.shape[1], u.shape[1], args.width, args.depth, x.mean(0), x.std(0) + 1e-6,
-                    sys_.action_low, sys_.action_high, args.bins)
+                    system.action_low, system.action_high, args.bins)
 
     def report(tag: str, t0: float) -> None:
         r = judge.run(policy)
