@@ -14,7 +14,8 @@ points of its ceiling in 9-12 s without them, and 54 s with them from the start 
 the buffer's bias towards long manoeuvres, ``benchmarks/train.py``) — they cost time and nothing else.
 
 **The rule** (the default preset's ``late_demonstrations``, ``late_after`` and ``demonstrations``
-with ``demonstrations_when = "stall"``): at a validation, once per run, the first of
+with ``demonstrations_when = "stall"``, on known dynamics: on a black box the planner's come at
+the start, ``black_box_demonstrations_when``): at a validation, once per run, the first of
 
 - *nothing found*: no validation of the run so far has brought a single state into the goal
   within any tolerance and the run has spent at least ``late_after`` of its budget (its steps, or
