@@ -87,7 +87,6 @@ class Preset:
             out["gamma"] = discount(deadline, self.horizon)
         return out
 
-
     def demonstrations_at(self, black_box: bool) -> str:
         """When the preset's demonstrations come: ``"start"`` or ``"stall"``."""
         if black_box and self.black_box_demonstrations_when is not None:
