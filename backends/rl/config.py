@@ -172,7 +172,9 @@ def resolve_config(prog, task: Optional[str] = None, *, algo: Optional[str] = No
         raise ConfigError(f"the time limit must be a positive number of seconds; got {time_limit}")
     demos = _demonstrations(prog, algo, demonstrations, p.demonstration_states(total))
     stall = 0
-    if demonstrations is None and p.demonstrations_at(prog.system.kind == "simulator") == "stall":  # when the run stalls
+    from .demonstrations import searcher  # here: demonstrations imports this module
+
+    if demonstrations is None and p.demonstrations_at(searcher(prog) == "planner") == "stall":  # when the run stalls
         demos, stall = 0, demos
     restarts = p.failed_starts if failed_starts is None else failed_starts
     if isinstance(restarts, bool) or not isinstance(restarts, (int, float)) or not 0.0 <= restarts <= 1.0:
