@@ -103,6 +103,24 @@ def test_a_black_box_gets_the_planners_sequences_and_the_buffer_holds_their_repl
     assert np.sum(rew == rew.max()) >= demos.added  # every replay reaches (r_sat)
 
 
+def test_the_planners_count_is_the_budgets_whatever_the_cores(monkeypatch):
+    """A sweep's one-core worker searches as many states as a two-core run (the budget is CPU
+    seconds): a count that followed the cores gave the swimmer's seed 1 six solved states."""
+    from asap_dsl import limits
+    from asap_dsl.backends.rl.demonstrations import search_count
+
+    monkeypatch.syspath_prepend(str(Path(__file__).resolve().parent / "fixtures"))
+    from test_planner import CART
+
+    prog = asap_dsl.loads(CART % "user_sims:double_integrator", "cart.asap")
+    counts = set()
+    for cores in (1, 2, 8):
+        monkeypatch.setattr(limits, "available_cores", lambda c=cores: c)
+        counts.add(search_count(prog, 300, 5.0, 180.0))
+    assert counts == {36}
+    assert search_count(prog, 20, 5.0, 180.0) == 20 and search_count(prog, 300, 5.0, None) == 300
+
+
 def test_demonstration_states_are_not_evaluation_or_validation_states(rail):
     from asap_dsl.backends.rl.config import VALIDATION_SEED
     from asap_dsl.backends.rl.demonstrations import demonstration_seed
