@@ -171,3 +171,39 @@ def test_a_failure_earns_the_floor_for_ever_so_that_leaving_never_pays(rail):
     assert info[0]["end_reason"] == "avoid" and rewards[-1] == pytest.approx(cfg.failure_reward, rel=1e-6)
     # no episode that goes on can earn less: every step earns at least the floor
     assert all(r >= floor - 1e-9 for r in rewards[:-1]) and sum(rewards[:-1]) > cfg.failure_reward
+
+
+def test_when_the_discount_grows_mid_run_a_failure_still_earns_the_floor_for_ever(rail):
+    """The late rule lengthens the discount's horizon (:mod:`.exploration`); the failure step's
+    reward, floor / (1 - gamma), follows it in the learner's steps and in the stored ones."""
+    from types import SimpleNamespace
+
+    from asap_dsl.backends.rl.config import resolve_config
+    from asap_dsl.backends.rl.training import _LearnerEnv, _Session
+    from asap_dsl.env import make_vec_env
+
+    cfg = resolve_config(rail)
+    floor = make_vec_env(rail, num_envs=1).core.reward.floor
+    learner = _LearnerEnv(make_vec_env(rail, num_envs=1, seed=0, failure_reward=cfg.failure_reward), False)
+    stored = np.array([[cfg.failure_reward], [0.5]], dtype=np.float32)
+    model = SimpleNamespace(gamma=cfg.hyper["gamma"], replay_buffer=SimpleNamespace(rewards=stored))
+    session = SimpleNamespace(cfg=cfg, failure_reward=cfg.failure_reward, env=SimpleNamespace(venv=learner))
+    _Session.set_discount(session, model, 0.99)
+    assert model.gamma == 0.99 and session.failure_reward == pytest.approx(floor / (1 - 0.99))
+    assert stored[0, 0] == pytest.approx(floor / (1 - 0.99), rel=1e-6) and stored[1, 0] == 0.5
+
+    def episode(start: float, action: float) -> tuple[list[float], dict]:
+        learner.reset()
+        learner.venv.core.start(np.array([[start]]), 20)
+        rewards = []
+        while True:
+            learner.step_async(np.array([[action]]))
+            _, r, done, info = learner.step_wait()
+            rewards.append(float(r[0]))
+            if done[0]:
+                return rewards, info[0]
+
+    rewards, info = episode(-1.5, -1.0)  # into the pit: a failure
+    assert info["end_reason"] == "avoid" and rewards[-1] == pytest.approx(floor / (1 - 0.99), rel=1e-6)
+    rewards, info = episode(1.0, 0.0)  # staying put until the deadline: no failure, rewards as they were
+    assert info["TimeLimit.truncated"] and min(rewards) > floor / (1 - 0.99) / 2

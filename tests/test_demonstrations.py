@@ -240,7 +240,7 @@ def test_the_late_rule_fires_once_when_nothing_has_succeeded_after_its_share_of_
     assert not rule.due([zero, hit, zero], 500, 1000, 1.0, None)  # one state reached once: exploration works
     assert rule.due([zero], 10, 1000, 6.0, 60.0)               # a time-limited run: 10% of its time
     assert not LateDemonstrations(0, 0.1).due([zero], 900, 1000, 1.0, None)
-    rule.added = {"added": 3}
+    rule.restore({"added": 3, "at_step": 100, "why": "nothing found"})  # a checkpoint from before the list
     assert not rule.due([zero], 900, 1000, 1.0, None)          # once per run
 
 
@@ -257,8 +257,41 @@ def test_the_rule_fires_on_a_stall_once_validation_has_stopped_improving():
     assert rule.due(rows(0.2, 0.5, 0.6), 300, 10_000, 1.0, None) is None   # still improving
     assert rule.due(rows(0.2, 0.5, 0.6, 0.6, 0.6, 0.6), 600, 10_000, 1.0, None) == STALLED  # flat for half its steps
     assert LateDemonstrations(8, 0.1).due(rows(0.2, 0.5, 0.6, 0.6, 0.6, 0.6), 600, 10_000, 1.0, None) is None
-    rule.added = {"added": 3, "why": STALLED}
+    assert rule.due(rows(0.2, 1.0, 1.0, 1.0, 1.0, 1.0), 600, 10_000, 1.0, None) is None  # nothing left to gain
+    assert not rule.may_fire(rows(0.2, 1.0, 1.0, 1.0, 1.0, 1.0))  # ... so the run may end on its plateau
+    rule.added = [{"added": 3, "at_step": 600, "why": STALLED}]
     assert not rule.waits_for_stall and rule.due(rows(0.2, 0.5, 0.6, 0.6, 0.6, 0.6), 600, 10_000, 1.0, None) is None
+
+
+def test_a_run_that_found_nothing_can_still_stall_and_each_trigger_fires_once():
+    """The sparse goal's few sequences first; once the run's own successes stop improving, the
+    stall's. Each is judged on the validations after the latest firing."""
+    from asap_dsl.backends.rl.exploration import NOTHING, STALLED, LateDemonstrations
+
+    def rows(*scores, start=0):
+        return [{"steps": start + 100 * (i + 1), "score": s, "rates": {5: s, 10: s}} for i, s in enumerate(scores)]
+
+    rule = LateDemonstrations(8, 0.1, 300, 0.5, sparse_gamma=0.99)
+    zeros = rows(0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+    assert rule.due(zeros, 1000, 10_000, 1.0, None) == NOTHING
+    rule.added.append({"at_step": 1000, "why": NOTHING, "gamma": 0.99})
+    assert rule.gamma == 0.99 and rule.due(zeros, 1100, 10_000, 1.0, None) is None  # never twice
+    assert rule.may_fire(zeros + rows(0.1, 0.2, start=1000))
+    # Flat since the firing for half the steps: the stall; the validations of nothing before it do not count.
+    later = zeros + rows(0.1, 0.3, 0.3, 0.3, 0.3, 0.3, 0.3, 0.3, 0.3, 0.3, 0.3, start=1000)
+    assert rule.due(later, 2100, 10_000, 1.0, None) is None  # best at 1200: not half of 2100 ago
+    assert rule.due(later + rows(0.3, 0.3, 0.3, start=2100), 2400, 10_000, 1.0, None) == STALLED
+    rule.added.append({"at_step": 2400, "why": STALLED})
+    assert rule.since == 2400 and not rule.may_fire(later) and rule.gamma == 0.99
+
+
+def _saved_gamma(out) -> float:
+    """The discount in a run's checkpoint model (stable-baselines3's zip keeps its attributes)."""
+    import json
+    import zipfile
+
+    with zipfile.ZipFile(out / "checkpoint" / "model.zip") as z:
+        return float(json.loads(z.read("data"))["gamma"])
 
 
 def test_a_run_that_finds_nothing_gets_the_oracles_sequences_once(tmp_path, capsys, monkeypatch):
@@ -285,9 +318,13 @@ def test_a_run_that_finds_nothing_gets_the_oracles_sequences_once(tmp_path, caps
     base = ["train", spec, "--envs", 2, "--engine", "sb3", "--no-eval", "--out", out]
     code, _, err = asapc(capsys, *base, "--steps", STEPS)
     assert code == 0 and "no validation has succeeded after" in err, err
-    late = RunDir(out).read_manifest()["late_demonstrations"]
+    late = RunDir(out).read_manifest()["late_demonstrations"][0]
     assert 300 <= late["at_step"] < STEPS and late["states"] == 8 and late["added"] == 8 and late["oracle_seconds"] > 0
     assert late["why"] == "nothing found" and "demonstrations" not in RunDir(out).read_manifest()  # none at the start
+    # The discount's horizon grew to the deadline, in the model the run keeps and resumes.
+    config = RunDir(out).read_manifest()["config"]
+    assert late["gamma"] == config["sparse_gamma"] > config["hyper"]["gamma"]
+    assert "discount's horizon grows to the deadline" in err and _saved_gamma(out) == late["gamma"]
     slots = -(-late["transitions"] // 2)
     # the run's own steps after them. It may end early on the plateau (nothing learns without
     # updates): a callback that stops the run does so before stable-baselines3 stores that step.
@@ -299,6 +336,7 @@ def test_a_run_that_finds_nothing_gets_the_oracles_sequences_once(tmp_path, caps
     code, _, err = asapc(capsys, "train", spec, "--out", out, "--resume", "--steps", STEPS + 60, "--no-eval")
     assert code == 0 and "no validation has succeeded after" not in err
     assert buffer_pos() == slots + done()  # within the buffer the run was sized for
+    assert _saved_gamma(out) == late["gamma"]
 
     near = tmp_path / "near.asap"  # half the init box starts in the goal: validation succeeds
     near.write_text(far.replace("init [-1.5, -0.5]", "init [0.8, 1.6]"))
@@ -326,8 +364,8 @@ def test_a_run_whose_validation_stalls_gets_the_oracles_longest_sequences_once(t
                          "--out", out)
     assert code == 0 and "validation stopped improving after" in err, err
     m = RunDir(out).read_manifest()
-    late = m["late_demonstrations"]
-    assert late["why"] == "stalled" and late["states"] == STEPS // 800 and late["replays"] % 4 == 0
+    late = m["late_demonstrations"][0]
+    assert late["why"] == "stalled" and "gamma" not in late and late["states"] == STEPS // 800 and late["replays"] % 4 == 0
     assert late["at_step"] < m["steps_done"] and m.get("plateau_step", STEPS) > late["at_step"]
     code, _, err = asapc(capsys, "train", spec, "--out", out, "--resume", "--steps", STEPS + 600, "--no-eval")
     assert code == 0 and "validation stopped improving after" not in err

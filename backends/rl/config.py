@@ -13,7 +13,7 @@ from asap_dsl.observation import observation_sources
 from asap_dsl.rewards import check_reward_fits, resolve_reward
 from asap_dsl.sampling import EVAL_SEED
 
-from .presets import OFF_POLICY, get_preset
+from .presets import OFF_POLICY, discount, get_preset
 from .engines import REFERENCE, choose_engine
 from .validation import validation_states
 from . import hyper as _hyper
@@ -71,6 +71,7 @@ class TrainConfig:
     demonstrations: int = 0   # initial states whose oracle sequences fill the replay buffer first (:mod:`.demonstrations`)
     late_demonstrations: int = 0  # ... or later, when no validation has succeeded (:mod:`.exploration`)
     stall_demonstrations: int = 0  # ... or when validation has stopped improving (:mod:`.exploration`)
+    sparse_gamma: Optional[float] = None  # the discount once the late rule found nothing (None: the run's own)
     # Of the demonstrations' sequences the longest this share is kept, each this many times, the
     # oracle searching for at most these seconds (None: no bound but its time per state).
     demonstration_share: float = 1.0
@@ -94,7 +95,7 @@ class TrainConfig:
         data = {"engine": REFERENCE, **data}  # a run from before engines: stable-baselines3 trained it
         missing = names - set(data) - {"time_limit", "demonstrations", "late_demonstrations", "observation_sources",
                                          "demonstration_share", "demonstration_repeat", "demonstration_seconds",
-                                         "failed_starts", "failure_reward", *_KEY_WHEN_SET}  # runs from before them had none
+                                         "failed_starts", "failure_reward", "sparse_gamma", *_KEY_WHEN_SET}  # runs from before them had none
         if missing:
             raise ConfigError(f"the stored configuration lacks {', '.join(sorted(missing))}")
         for f in fields(cls):  # a manifest edited by hand: one sentence, not a crash deep in training
@@ -112,6 +113,9 @@ class TrainConfig:
         d.pop("validate_every", None)
         d.pop("time_limit", None)
         d.pop("demonstration_seconds", None)  # follows from the time limit
+        # Acts only once the late rule found nothing (the manifest's late_demonstrations says so):
+        # a run where it never fired, every benchmark's, is the same experiment with or without it.
+        d.pop("sparse_gamma", None)
         for name, off in _KEY_WHEN_SET.items():  # a rule added since: runs without it keep their key
             if d.get(name) == off:
                 d.pop(name, None)
@@ -181,6 +185,10 @@ def resolve_config(prog, task: Optional[str] = None, *, algo: Optional[str] = No
         raise ConfigError(f"failed starts must be a share between 0 and 1; got {restarts!r}")
     # The preset's rule for sparse goals, unless the run chose its demonstrations (0 included).
     late = 0 if demonstrations is not None else _demonstrations(prog, algo, None, p.late_demonstrations)
+    sparse_gamma = None
+    if late and p.sparse_horizon is not None and "gamma" not in block and "gamma" not in (settings or {}):
+        longer = discount(t.deadline, p.sparse_horizon)
+        sparse_gamma = longer if longer > float(hyper.get("gamma", 0.99)) else None
     if algo in OFF_POLICY:
         # Memory for what the run can fill, no more (the paper's buffer never drops a sample);
         # demonstrations are at most one episode per state.
@@ -206,7 +214,8 @@ def resolve_config(prog, task: Optional[str] = None, *, algo: Optional[str] = No
         validation_episodes=validation_states(total, p.validation_episodes), validation_seed=VALIDATION_SEED,
         validate_every=every,
         eval_episodes=episodes, hyper=hyper, time_limit=None if time_limit is None else float(time_limit),
-        demonstrations=demos, late_demonstrations=late, stall_demonstrations=stall, observation_sources=sources,
+        demonstrations=demos, late_demonstrations=late, stall_demonstrations=stall, sparse_gamma=sparse_gamma,
+        observation_sources=sources,
         demonstration_share=p.demonstration_share, demonstration_repeat=p.demonstration_repeat,
         demonstration_seconds=p.demonstration_budget(time_limit), failed_starts=float(restarts),
         failure_reward=_failure_reward(prog, t, model, hyper, p.failure_forever), plateau=p.plateau,

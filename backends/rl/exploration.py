@@ -15,26 +15,32 @@ the buffer's bias towards long manoeuvres, ``benchmarks/train.py``) — they cos
 
 **The rule** (the default preset's ``late_demonstrations``, ``late_after`` and ``demonstrations``
 with ``demonstrations_when = "stall"``, on known dynamics: on a black box the planner's come at
-the start, ``black_box_demonstrations_when``): at a validation, once per run, the first of
+the start, ``black_box_demonstrations_when``): at a validation, each trigger at most once per run,
 
 - *nothing found*: no validation of the run so far has brought a single state into the goal
   within any tolerance and the run has spent at least ``late_after`` of its budget (its steps, or
   its time limit, whichever is further along): the oracle solves ``late_demonstrations`` initial
-  states (15 s each at most) and their replays go into the replay buffer;
+  states (15 s each at most) and their replays go into the replay buffer. Such a task is one whose
+  dense reward leads away from the goal (a swing-up, a detour), so the discount's horizon, a share
+  of the deadline chosen for tasks where it does not, grows to the preset's ``sparse_horizon``
+  share (the run's ``sparse_gamma``; not where the run set its own ``gamma``);
 - *stalled*: validation has stopped improving as the plateau rule judges it
-  (:func:`~.validation.plateau_reached`, the run's share; the plateau's floor does not apply):
+  (:func:`~.validation.plateau_reached`, the run's share, on the validations since the last
+  firing; the plateau's floor does not apply) and some tolerance is still short of 100%:
   the oracle solves ``stall_demonstrations`` states within the demonstrations' budget, and the
   longest share of their sequences go in, each repeated (as demonstrations from the start do).
 
+A run that found nothing can thus stall later too, and get both: the first few sequences show the
+critic what the goal pays, the later ones the long manoeuvres its own successes did not teach.
 The states are the run's own demonstration seed's (:func:`~.demonstrations.demonstration_seed`:
 never the validation or evaluation states). Its time counts as the run's, and the run is judged
-for its plateau on the validations after it alone. Where demonstrations cannot be had (PPO or
-A2C) or the run asked for its own (``--demonstrations N``, 0 included) there is no rule.
+for its plateau on the validations after the last firing alone. Where demonstrations cannot be
+had (PPO or A2C) or the run asked for its own (``--demonstrations N``, 0 included) there is no rule.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any, Mapping, Optional, Sequence
 
 __all__ = ["LATE_STATE_SECONDS", "NOTHING", "STALLED", "LateDemonstrations", "add_late"]
@@ -57,19 +63,49 @@ NOTHING, STALLED = "nothing found", "stalled"
 class LateDemonstrations:
     """The rule for one run: ``states`` to solve once ``after`` of the budget is spent with no
     success, ``stall_states`` once validation has stopped improving over the latest ``stall``
-    share of the steps (0 or None: not on a stall); ``added`` what was done when it fired (kept in
-    the checkpoint), None before."""
+    share of the steps (0 or None: not on a stall); ``sparse_gamma`` the discount once nothing was
+    found (None: the run's own). ``added`` what each firing did, in order (kept in the checkpoint)."""
 
     states: int
     after: float
     stall_states: int = 0
     stall: Optional[float] = None
-    added: Optional[dict] = None
+    sparse_gamma: Optional[float] = None
+    added: list = field(default_factory=list)
+
+    def fired(self, why: str) -> bool:
+        return any(row.get("why") == why for row in self.added)
+
+    @property
+    def since(self) -> Optional[int]:
+        """The step of the latest firing (None before any): validations after it judge the run."""
+        return int(self.added[-1]["at_step"]) if self.added else None
+
+    @property
+    def gamma(self) -> Optional[float]:
+        """The discount a firing set (None: the run's own)."""
+        return next((row["gamma"] for row in reversed(self.added) if row.get("gamma") is not None), None)
 
     @property
     def waits_for_stall(self) -> bool:
         """Whether a stall would still fire the rule (a run then does not end on its plateau)."""
-        return self.added is None and self.stall_states > 0 and self.stall is not None
+        return self.stall_states > 0 and self.stall is not None and not self.fired(STALLED)
+
+    def restore(self, stored: Any) -> None:
+        """What a checkpoint kept: a list of firings, or one (a run from before both could fire)."""
+        self.added = [] if stored is None else [dict(stored)] if isinstance(stored, Mapping) else [dict(r) for r in stored]
+
+    def recent(self, curves: Sequence[Mapping[str, Any]]) -> list:
+        """The validations since the latest firing (all of them before any)."""
+        since = self.since
+        return [r for r in curves if since is None or r["steps"] > since]
+
+    def may_fire(self, curves: Sequence[Mapping[str, Any]]) -> bool:
+        """Whether the rule may still fire after the validations ``curves``: a run does not end
+        on its plateau before (it has found nothing and nothing has fired, or a stall would)."""
+        if not _succeeded(curves):
+            return not self.added
+        return self.waits_for_stall and not _complete(self.recent(curves) or curves)
 
     def due(self, curves: Sequence[Mapping[str, Any]], steps: int, total_steps: int, seconds: float,
             time_limit: Optional[float]) -> Optional[str]:
@@ -78,24 +114,34 @@ class LateDemonstrations:
         :data:`NOTHING` or :data:`STALLED`; None when it does not."""
         from .validation import plateau_reached
 
-        if self.added is not None or not curves:
+        if not curves:
             return None
-        if not any(rate > 0 for row in curves for rate in row["rates"].values()):
+        if not _succeeded(curves):
             spent = steps / max(1, total_steps)
             if time_limit is not None:
                 spent = max(spent, seconds / time_limit)
-            return NOTHING if self.states > 0 and spent >= self.after else None
-        if self.waits_for_stall and plateau_reached(list(curves), steps, float(self.stall)):
+            return NOTHING if self.states > 0 and not self.fired(NOTHING) and spent >= self.after else None
+        if self.may_fire(curves) and plateau_reached(self.recent(curves), steps, float(self.stall)):
             return STALLED
         return None
 
 
+def _succeeded(curves: Sequence[Mapping[str, Any]]) -> bool:
+    """Whether any validation brought a state into the goal within any tolerance."""
+    return any(rate > 0 for row in curves for rate in row["rates"].values())
+
+
+def _complete(curves: Sequence[Mapping[str, Any]]) -> bool:
+    """Whether the best validation is 100% at every tolerance: no demonstration can add to it."""
+    return all(rate >= 1.0 for rate in max(curves, key=lambda r: r["score"])["rates"].values())
+
+
 def add_late(session, model, steps: int, why: str = NOTHING) -> Optional[dict]:
     """Fire ``session.late`` for the reason ``why``: the oracle's sequences for its states into
-    ``model``'s replay buffer, said in the progress and recorded in the manifest
-    (``late_demonstrations``). Returns what was added (:class:`~.demonstrations.Demonstrations` as
-    a dict with ``at_step`` and ``why``), or None when a stop was requested meanwhile (the rule then
-    stays due)."""
+    ``model``'s replay buffer (after the longer discount where nothing was found), said in the
+    progress and recorded in the manifest (``late_demonstrations``, the list of firings). Returns
+    what was added (:class:`~.demonstrations.Demonstrations` as a dict with ``at_step``, ``why``
+    and any new ``gamma``), or None when a stop was requested meanwhile (the rule then stays due)."""
     from .demonstrations import DEMONSTRATION_STATE_SECONDS, add_demonstrations, longest, search_count, searcher, solve
 
     rule: LateDemonstrations = session.late
@@ -124,9 +170,15 @@ def add_late(session, model, steps: int, why: str = NOTHING) -> Optional[dict]:
         return None
     if stalled:  # as demonstrations from the start: the long manoeuvres, weighted
         witnesses = longest(witnesses, cfg.demonstration_share, cfg.demonstration_repeat)
+    gamma = None
+    if not stalled and rule.sparse_gamma is not None and rule.sparse_gamma > float(model.gamma):
+        gamma = float(rule.sparse_gamma)
+        session._tell(f"the discount's horizon grows to the deadline: gamma {float(model.gamma):g} -> {gamma:g}")
+        session.set_discount(model, gamma)
     demos = add_demonstrations(session.prog, cfg.task, model, session.learner_env, session.scaling, witnesses,
-                               reward=cfg.reward, failure_reward=cfg.failure_reward)
-    rule.added = {**demos.to_dict(), "at_step": int(steps), "why": why}
+                               reward=cfg.reward, failure_reward=session.failure_reward)
+    row = {**demos.to_dict(), "at_step": int(steps), "why": why, **({} if gamma is None else {"gamma": gamma})}
+    rule.added.append(row)
     session._tell(demos.text())
     session.run.update_manifest(late_demonstrations=rule.added)
-    return rule.added
+    return row

@@ -178,6 +178,7 @@ class _Session:
         self.curriculum = (failed_starts_env(self.raw_env, cfg.failed_starts, cfg.seed)
                            if cfg.failed_starts > 0 else None)
         self.env = self.learner_env(self.raw_env if self.curriculum is None else self.curriculum)
+        self.failure_reward = cfg.failure_reward  # the learner's reward of a failure step, as the discount has it
         val_states = task_states(prog.system, self.task, cfg.validation_episodes, seed=cfg.validation_seed)
         self.validator = Evaluator(prog, cfg.task, val_states, reward=cfg.reward)
         self.curves: list[dict] = []
@@ -189,7 +190,8 @@ class _Session:
         # The default preset's demonstrations when the run needs them (:mod:`.exploration`), None
         # where there are none.
         self.late = (LateDemonstrations(cfg.late_demonstrations, get_preset(cfg.preset).late_after,
-                                        cfg.stall_demonstrations, cfg.plateau or get_preset(cfg.preset).plateau)
+                                        cfg.stall_demonstrations, cfg.plateau or get_preset(cfg.preset).plateau,
+                                        cfg.sparse_gamma)
                      if cfg.late_demonstrations > 0 or cfg.stall_demonstrations > 0 else None)
         self.stop = stop if stop is not None else Interrupts()
         self.kept_rows = 0  # the demonstrations' rows of the replay buffer, never overwritten
@@ -252,17 +254,31 @@ class _Session:
         """Whether the run ends on the plateau rule (:func:`.validation.plateau_reached`), once
         ``plateau_after`` of its steps are done. A run waits for the late demonstrations while they
         may still come (it has found nothing, or a stall would bring them), and once they have come
-        it is judged on the validations after them alone."""
+        it is judged on the validations after the latest alone."""
         if self.cfg.plateau is None or steps < (self.cfg.plateau_after or 0.0) * self.cfg.steps:
             return False
         curves = self.curves
         if self.late is not None:
-            if self.late.added is None:
-                if self.late.waits_for_stall or not any(rate > 0 for row in curves for rate in row["rates"].values()):
-                    return False
-            else:
-                curves = [r for r in curves if r["steps"] > self.late.added["at_step"]]
+            if self.late.may_fire(curves):
+                return False
+            curves = self.late.recent(curves)
         return plateau_reached(curves, steps, self.cfg.plateau)
+
+    def set_discount(self, model, gamma: float) -> None:
+        """The learner's discount becomes ``gamma`` mid-run (the late rule, :mod:`.exploration`).
+        A failure step earns the reward's floor for every step after it, ``floor / (1 - gamma)``:
+        its reward follows the discount, in the learner's steps and in those already stored (the
+        env's failure reward is compiled in; the stored ones are exactly that constant)."""
+        model.gamma = float(gamma)
+        if self.cfg.failure_reward is None:
+            return
+        was = self.failure_reward
+        start = float(self.cfg.hyper.get("gamma", 0.99))  # the discount cfg.failure_reward was made for
+        self.failure_reward = float(self.cfg.failure_reward) * (1.0 - start) / (1.0 - float(gamma))
+        self.env.venv.failure_reward = self.failure_reward
+        buffer = getattr(model, "replay_buffer", None)
+        if buffer is not None and was != self.failure_reward:
+            buffer.rewards[buffer.rewards == np.float32(was)] = np.float32(self.failure_reward)
 
     def _tell(self, line: str) -> None:
         note = getattr(self.progress, "note", None)  # optional in TrainProgress
@@ -336,7 +352,9 @@ class _Session:
         self.best, self.curves = state["best"], list(state["curves"])
         self.schedule.restore(state)
         if self.late is not None:  # added before the checkpoint: never again
-            self.late.added = state.get("late_demonstrations")
+            self.late.restore(state.get("late_demonstrations"))
+            if self.late.gamma is not None:  # the model keeps its discount; the failure step's reward follows it
+                self.set_discount(model, self.late.gamma)
         self.kept_rows = int(state.get("demonstration_rows") or 0)
         if self.curriculum is not None and state.get("failed_starts") is not None:
             self.curriculum.restore(state["failed_starts"])
@@ -384,20 +402,25 @@ def _wrapper_base():
 
 class _LearnerEnv(_wrapper_base()):
     """With the time left in the observation, the deadline ends a finite-horizon problem: the
-    time-out is terminal (no bootstrapping past it). Otherwise a pass-through."""
+    time-out is terminal (no bootstrapping past it). ``failure_reward`` (None: the env's) is a
+    failure step's reward once the discount changed mid-run (:meth:`_Session.set_discount`)."""
 
     def __init__(self, venv, terminal: bool):
         super().__init__(venv)
         self.terminal = terminal
+        self.failure_reward: Optional[float] = None
 
     def reset(self):
         return self.venv.reset()
 
     def step_wait(self):
         obs, reward, done, infos = self.venv.step_wait()
-        if self.terminal and done.any():
+        if done.any() and (self.terminal or self.failure_reward is not None):
             for i in np.flatnonzero(done):
-                infos[i]["TimeLimit.truncated"] = False
+                if self.failure_reward is not None and not infos[i].get("TimeLimit.truncated", False):
+                    reward[i] = self.failure_reward  # terminated before the deadline: a failure
+                if self.terminal:
+                    infos[i]["TimeLimit.truncated"] = False
         return obs, reward, done, infos
 
 
