@@ -283,6 +283,11 @@ def test_a_run_that_found_nothing_can_still_stall_and_each_trigger_fires_once():
     assert rule.due(later + rows(0.3, 0.3, 0.3, start=2100), 2400, 10_000, 1.0, None) == STALLED
     rule.added.append({"at_step": 2400, "why": STALLED})
     assert rule.since == 2400 and not rule.may_fire(later) and rule.gamma == 0.99
+    # Still nothing after the first few sequences (the puck's detour): that is a stall too.
+    rule = LateDemonstrations(8, 0.1, 300, 0.5, added=[{"at_step": 1000, "why": NOTHING}])
+    still = zeros + rows(*[0.0] * 11, start=1000)
+    assert rule.may_fire(still) and rule.due(still, 2100, 10_000, 1.0, None) is None
+    assert rule.due(still + rows(0.0, start=2100), 2200, 10_000, 1.0, None) == STALLED
 
 
 def _saved_gamma(out) -> float:
@@ -325,17 +330,23 @@ def test_a_run_that_finds_nothing_gets_the_oracles_sequences_once(tmp_path, caps
     config = RunDir(out).read_manifest()["config"]
     assert late["gamma"] == config["sparse_gamma"] > config["hyper"]["gamma"]
     assert "discount's horizon grows to the deadline" in err and _saved_gamma(out) == late["gamma"]
-    slots = -(-late["transitions"] // 2)
+    assert RunDir(out).read_manifest()["seconds"] >= late["seconds"]  # the search is the run's time, cached or not
+
+    def slots() -> int:  # the rows of every firing: still nothing found, the run may stall and get the stall's too
+        firings = RunDir(out).read_manifest()["late_demonstrations"]
+        assert [r["why"] for r in firings] in (["nothing found"], ["nothing found", "stalled"])
+        return sum(-(-r["transitions"] // 2) for r in firings)
+
     # the run's own steps after them. It may end early on the plateau (nothing learns without
     # updates): a callback that stops the run does so before stable-baselines3 stores that step.
     def done() -> int:
         m = RunDir(out).read_manifest()
         return m["steps_done"] // 2 - ("plateau_step" in m)
 
-    assert buffer_pos() == slots + done()
+    assert buffer_pos() == slots() + done()
     code, _, err = asapc(capsys, "train", spec, "--out", out, "--resume", "--steps", STEPS + 60, "--no-eval")
     assert code == 0 and "no validation has succeeded after" not in err
-    assert buffer_pos() == slots + done()  # within the buffer the run was sized for
+    assert buffer_pos() == slots() + done()  # within the buffer the run was sized for
     assert _saved_gamma(out) == late["gamma"]
 
     near = tmp_path / "near.asap"  # half the init box starts in the goal: validation succeeds

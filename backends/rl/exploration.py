@@ -26,7 +26,8 @@ the start, ``black_box_demonstrations_when``): at a validation, each trigger at 
   share (the run's ``sparse_gamma``; not where the run set its own ``gamma``);
 - *stalled*: validation has stopped improving as the plateau rule judges it
   (:func:`~.validation.plateau_reached`, the run's share, on the validations since the last
-  firing; the plateau's floor does not apply) and some tolerance is still short of 100%:
+  firing; the plateau's floor does not apply) and some tolerance is still short of 100% — a
+  run that still finds nothing after the first trigger's sequences stalls too:
   the oracle solves ``stall_demonstrations`` states within the demonstrations' budget, and the
   longest share of their sequences go in, each repeated (as demonstrations from the start do).
 
@@ -40,6 +41,7 @@ had (PPO or A2C) or the run asked for its own (``--demonstrations N``, 0 include
 
 from __future__ import annotations
 
+import time
 from dataclasses import dataclass, field
 from typing import Any, Mapping, Optional, Sequence
 
@@ -104,7 +106,7 @@ class LateDemonstrations:
         """Whether the rule may still fire after the validations ``curves``: a run does not end
         on its plateau before (it has found nothing and nothing has fired, or a stall would)."""
         if not _succeeded(curves):
-            return not self.added
+            return not self.added or self.waits_for_stall
         return self.waits_for_stall and not _complete(self.recent(curves) or curves)
 
     def due(self, curves: Sequence[Mapping[str, Any]], steps: int, total_steps: int, seconds: float,
@@ -116,11 +118,11 @@ class LateDemonstrations:
 
         if not curves:
             return None
-        if not _succeeded(curves):
+        if not _succeeded(curves) and not self.fired(NOTHING):
             spent = steps / max(1, total_steps)
             if time_limit is not None:
                 spent = max(spent, seconds / time_limit)
-            return NOTHING if self.states > 0 and not self.fired(NOTHING) and spent >= self.after else None
+            return NOTHING if self.states > 0 and spent >= self.after else None
         if self.may_fire(curves) and plateau_reached(self.recent(curves), steps, float(self.stall)):
             return STALLED
         return None
@@ -154,6 +156,7 @@ def add_late(session, model, steps: int, why: str = NOTHING) -> Optional[dict]:
             raise _Stopped
 
     who = searcher(session.prog)
+    began = time.perf_counter()
     budget = cfg.demonstration_seconds if stalled else None
     per_state = DEMONSTRATION_STATE_SECONDS if stalled else LATE_STATE_SECONDS
     head = (f"validation stopped improving after {steps:,} steps" if stalled
@@ -177,6 +180,8 @@ def add_late(session, model, steps: int, why: str = NOTHING) -> Optional[dict]:
         session.set_discount(model, gamma)
     demos = add_demonstrations(session.prog, cfg.task, model, session.learner_env, session.scaling, witnesses,
                                reward=cfg.reward, failure_reward=session.failure_reward)
+    # Charged the search's seconds, as at the start: read back from the cache it took none here.
+    session.seconds_before += max(0.0, demos.seconds - (time.perf_counter() - began))
     row = {**demos.to_dict(), "at_step": int(steps), "why": why, **({} if gamma is None else {"gamma": gamma})}
     rule.added.append(row)
     session._tell(demos.text())
