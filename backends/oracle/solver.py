@@ -30,6 +30,7 @@ search used up its time, :data:`STATE_TIME_LIMIT` by default, before deciding: n
 from __future__ import annotations
 
 import signal
+import sys
 import time
 from dataclasses import replace
 from typing import Callable, Optional, Sequence
@@ -176,7 +177,9 @@ def run(prog, task: Optional[str] = None, episodes: int = 1000, seed: int = EVAL
         chunks = np.array_split(np.asarray(order), min(len(states), 8 * workers))
         payloads = [(prog.source, prog.file, oracle.task_name, states[c], [int(i) for i in c], ipopt_options,
                      restarts, interval_bound, time_limit) for c in chunks if len(c)]
-        method = "fork" if "fork" in mp.get_all_start_methods() else "spawn"
+        # Forked where it is safe (quicker to start); spawned once JAX is loaded (`asapc eval` of an
+        # sbx run): forking its threads may deadlock, and JAX warns the user so.
+        method = "fork" if "fork" in mp.get_all_start_methods() and "jax" not in sys.modules else "spawn"
         parts = []
         with mp.get_context(method).Pool(workers, initializer=_init_worker) as pool:
             for part in pool.imap_unordered(_worker, payloads):
