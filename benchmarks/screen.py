@@ -49,7 +49,8 @@ from pathlib import Path
 import numpy as np
 
 import asap_dsl
-from asap_dsl.backends.rl import presets, training
+from asap_dsl.backends.rl import presets
+from asap_dsl.backends.rl import session as session_module
 from asap_dsl.env import core_of
 from learner_probes import patch_action_search, patch_demo_bc, patch_return_bound, patch_sbx_class
 
@@ -98,15 +99,15 @@ def patch_end_at_reach(bonus: float) -> dict:
             return obs, reward, done, infos
 
     orig = curriculum.failed_starts_env
-    training.failed_starts_env = lambda venv, share, seed: orig(EndAtReach(venv), share, seed)
+    session_module.failed_starts_env = lambda venv, share, seed: orig(EndAtReach(venv), share, seed)
     # The demonstrations' replays go through learner_env without the curriculum: the same rule there.
-    orig_learner_env = training._Session.learner_env
+    orig_learner_env = session_module.Session.learner_env
     started = curriculum._failed_starts_class()
 
     def learner_env(self, raw):
         return orig_learner_env(self, raw if isinstance(raw, started) else EndAtReach(raw))
 
-    training._Session.learner_env = learner_env
+    session_module.Session.learner_env = learner_env
     return stats
 
 
@@ -200,13 +201,13 @@ def patch_failed_demos(prog, task: str, every: int, states: int, repeat: int, st
 
     stats = {"failed_demo_calls": 0, "failed_demo_solved": 0, "failed_demo_seconds": 0.0}
     holder = {}
-    orig_init = training._Session.__init__
+    orig_init = session_module.Session.__init__
 
     def init(self, *a, **k):
         orig_init(self, *a, **k)
         holder["session"] = self
 
-    training._Session.__init__ = init
+    session_module.Session.__init__ = init
     kmax = prog.task(task).model.episode[1]
 
     class FailedDemos(BaseCallback):

@@ -179,16 +179,16 @@ def test_when_the_discount_grows_mid_run_a_failure_still_earns_the_floor_for_eve
     from types import SimpleNamespace
 
     from asap_dsl.backends.rl.config import resolve_config
-    from asap_dsl.backends.rl.training import _LearnerEnv, _Session
+    from asap_dsl.backends.rl.session import LearnerEnv, Session
     from asap_dsl.env import make_vec_env
 
     cfg = resolve_config(rail)
     floor = make_vec_env(rail, num_envs=1).core.reward.floor
-    learner = _LearnerEnv(make_vec_env(rail, num_envs=1, seed=0, failure_reward=cfg.failure_reward), False)
+    learner = LearnerEnv(make_vec_env(rail, num_envs=1, seed=0, failure_reward=cfg.failure_reward), False)
     stored = np.array([[cfg.failure_reward], [0.5]], dtype=np.float32)
     model = SimpleNamespace(gamma=cfg.hyper["gamma"], replay_buffer=SimpleNamespace(rewards=stored))
     session = SimpleNamespace(cfg=cfg, failure_reward=cfg.failure_reward, env=SimpleNamespace(venv=learner))
-    _Session.set_discount(session, model, 0.99)
+    Session.set_discount(session, model, 0.99)
     assert model.gamma == 0.99 and session.failure_reward == pytest.approx(floor / (1 - 0.99))
     assert stored[0, 0] == pytest.approx(floor / (1 - 0.99), rel=1e-6) and stored[1, 0] == 0.5
 

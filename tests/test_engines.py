@@ -162,7 +162,7 @@ def test_a_checkpoint_restores_the_jax_keys_and_the_random_actions(tmp_path):
     import jax
 
     from asap_dsl.backends.rl.config import TrainConfig
-    from asap_dsl.backends.rl.training import _Session
+    from asap_dsl.backends.rl.session import Session
 
     spec, out = _spec(tmp_path, "sac"), tmp_path / "run"
     asap_dsl.train(spec, engine="sbx", steps=300, n_envs=2, out=out, evaluate=False, seed=3)
@@ -173,7 +173,7 @@ def test_a_checkpoint_restores_the_jax_keys_and_the_random_actions(tmp_path):
     keys = rng["jax"]
     assert not np.array_equal(keys["model"], np.asarray(jax.random.PRNGKey(3)))  # it moved on from the seed
     cfg = TrainConfig.from_dict(run.read_manifest()["config"])
-    model = _Session(asap_dsl.load(spec), cfg, run, None).restore(ckpt)  # loading re-seeds; restoring re-sets
+    model = Session(asap_dsl.load(spec), cfg, run, None).restore(ckpt)  # loading re-seeds; restoring re-sets
     assert np.array_equal(np.asarray(model.key), keys["model"])
     assert np.array_equal(np.asarray(model.policy.key), keys["policy"])
     assert np.array_equal(np.asarray(model.policy.noise_key), keys["noise"])
@@ -189,7 +189,7 @@ def _param_count(tree) -> int:
 @pytest.mark.parametrize("algo", ["sac", "td3", "ddpg", "ppo"])
 def test_both_engines_build_the_same_networks_on_the_same_spaces(algo):
     from asap_dsl.backends.rl.config import resolve_config
-    from asap_dsl.backends.rl.training import _LearnerEnv
+    from asap_dsl.backends.rl.session import LearnerEnv
     from asap_dsl.backends.rl.engines import get_engine
     from asap_dsl.backends.rl.sb3 import Scaling, ScaledVecEnv
     from asap_dsl.env import make_vec_env
@@ -198,7 +198,7 @@ def test_both_engines_build_the_same_networks_on_the_same_spaces(algo):
     cfg = resolve_config(prog, "reach_avoid", algo=algo)
     task = prog.task("reach_avoid").model
     scaling = Scaling.for_system(prog.system, cfg.observation_scaling, cfg.action_scaling, task.init_box)
-    env = _LearnerEnv(ScaledVecEnv(make_vec_env(prog, "reach_avoid", num_envs=cfg.n_envs, seed=0), scaling), False)
+    env = LearnerEnv(ScaledVecEnv(make_vec_env(prog, "reach_avoid", num_envs=cfg.n_envs, seed=0), scaling), False)
     sbx, sb3 = (get_engine(e).build(algo, env, cfg.hyper, 0) for e in ("sbx", "sb3"))
     for a, b in ((sbx.observation_space, sb3.observation_space), (sbx.action_space, sb3.action_space)):
         assert np.array_equal(a.low, b.low) and np.array_equal(a.high, b.high)

@@ -183,11 +183,11 @@ def test_a_kill_between_commit_and_rename_is_finished_on_the_next_lock(run):
 # -------------------------------------------------------------------------------- 7. write failures
 def test_a_failed_checkpoint_write_keeps_the_last_one(base, tmp_path, monkeypatch):
     """A patched writer: the second checkpoint fails with EIO half way (its state.pkl)."""
-    from asap_dsl.backends.rl import training
+    from asap_dsl.backends.rl import session
 
     spec, _ = base
     calls = {"n": 0}
-    real = training._rng_state
+    real = session._rng_state
 
     def failing(*a, **k):
         calls["n"] += 1
@@ -195,7 +195,7 @@ def test_a_failed_checkpoint_write_keeps_the_last_one(base, tmp_path, monkeypatc
             raise OSError(errno.EIO, "Input/output error")
         return real(*a, **k)
 
-    monkeypatch.setattr(training, "_rng_state", failing)
+    monkeypatch.setattr(session, "_rng_state", failing)
     out = tmp_path / "run"
     with pytest.raises(RunError) as info:
         asap_dsl.train(spec, steps=150, n_envs=2, out=out, settings=FAST, evaluate=False, engine="sb3")
@@ -205,7 +205,7 @@ def test_a_failed_checkpoint_write_keeps_the_last_one(base, tmp_path, monkeypatc
     m = RunDir(out).read_manifest()
     assert m["status"] == "failed" and "input/output error" in m["error"]
     assert RunDir(out).checkpoint().steps == 0 and not (out / "checkpoint.new").exists()
-    monkeypatch.setattr(training, "_rng_state", real)
+    monkeypatch.setattr(session, "_rng_state", real)
     res = asap_dsl.train(spec, out=out, resume=True, evaluate=False)
     assert completed(res, 150)
 

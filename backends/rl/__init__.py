@@ -17,7 +17,8 @@ _WHERE = {
     "evaluation": ("Evaluation", "LoadedRun", "evaluate", "load_run", "summarise"),
     "presets": ("ALGORITHMS", "DEFAULT", "OFF_POLICY", "PAPER", "PRESETS", "Preset", "get_preset"),
     "sb3": ("PolicyController", "Scaling", "ScaledVecEnv", "build_model", "load_model"),
-    "training": ("CHECKPOINT_SECONDS", "TrainProgress", "TrainResult", "train", "validation_score"),
+    "session": ("CHECKPOINT_SECONDS",),
+    "training": ("TrainProgress", "TrainResult", "train", "validation_score"),
 }
 _MODULE = {name: module for module, names in _WHERE.items() for name in names}
 

@@ -1,0 +1,377 @@
+"""One process's share of a training run (:mod:`.training`): the learner's environments, the
+periodic validation and the model it keeps, the default preset's late demonstrations
+(:mod:`.exploration`), checkpoints and their restoring, and the callback that drives them from the
+learning loop. :func:`~.training.train` opens the run directory and builds a :class:`Session`;
+the session never parses a spec or resolves a configuration.
+"""
+
+from __future__ import annotations
+
+import json
+import pickle
+import random
+import time
+from pathlib import Path
+from typing import TYPE_CHECKING, Any, Optional, Sequence
+
+import numpy as np
+
+from asap_dsl.program import Program
+from asap_dsl.rollout import Evaluator
+from asap_dsl.processes import Interrupts
+from asap_dsl.runs import Checkpoint, RunDir, RunError, checkpoint_seconds, json_safe
+from asap_dsl.sampling import task_states
+
+from .config import TrainConfig
+from .curriculum import failed_starts_env
+from .demonstrations import keep
+from .presets import OFF_POLICY, get_preset
+from .engines import Engine, get_engine
+from .exploration import LateDemonstrations, add_late
+from .sb3 import PolicyController, Scaling, ScaledVecEnv
+from .validation import Schedule, log_validation, plateau_reached, rule_text, validation_score, write_curves
+
+if TYPE_CHECKING:
+    from .training import TrainProgress
+
+__all__ = ["CHECKPOINT_SECONDS", "LearnerEnv", "Session"]
+
+CHECKPOINT_SECONDS = checkpoint_seconds()  # wall time between periodic checkpoints (ASAP_CHECKPOINT_SECONDS)
+
+
+# ------------------------------------------------------------------------------------ checkpoints
+def _rng_state(venv, model, engine: Engine) -> dict:
+    # "actions": the random actions before learning starts (the model re-seeds them on loading).
+    return {"python": random.getstate(), "numpy": np.random.get_state(), "env": venv.core.rng.bit_generator.state,
+            "actions": model.action_space.np_random.bit_generator.state, **engine.rng_state(model)}
+
+
+def _set_rng_state(state: dict, venv, model, engine: Engine) -> None:
+    random.setstate(state["python"])
+    np.random.set_state(state["numpy"])
+    venv.core.rng.bit_generator.state = state["env"]
+    if "actions" in state:  # checkpoints written before it was kept lack it
+        model.action_space.np_random.bit_generator.state = state["actions"]
+    engine.set_rng_state(model, state)
+
+
+def _save_checkpoint(run: RunDir, model, venv, algo: str, extra: dict, engine: Engine, **changes: Any) -> None:
+    """Write the checkpoint through the run directory: the files in full, then their records in
+    the manifest (with ``changes``), then swapped in; the previous one stays valid until then."""
+    def state_pickle(path: Path) -> None:
+        with open(path, "wb") as f:
+            pickle.dump({"rng": _rng_state(venv, model, engine), **extra}, f)
+
+    def state_json(path: Path) -> None:
+        summary = {k: v for k, v in extra.items() if k != "curves"}
+        path.write_text(json.dumps(json_safe(summary), indent=2, allow_nan=False) + "\n", encoding="utf-8")
+
+    files = {"model.zip": lambda path: model.save(str(path))}
+    if algo in OFF_POLICY:
+        files["replay.pkl"] = lambda path: model.save_replay_buffer(str(path))
+    files["state.pkl"], files["state.json"] = state_pickle, state_json
+    run.save_checkpoint(files, int(extra["steps"]), **changes)
+
+
+# ------------------------------------------------------------------------------------ the run
+def _callbacks():
+    from stable_baselines3.common.callbacks import BaseCallback
+
+    class RunCallback(BaseCallback):
+        """Validation, checkpoints, progress and stopping, in one pass per environment step."""
+
+        def __init__(self, session: "Session"):
+            super().__init__()
+            self.s = session
+
+        def _on_step(self) -> bool:
+            s = self.s
+            n = self.num_timesteps
+            if s.progress is not None:
+                s.progress.advance(n)
+            if s.kept_rows:  # before the step's transitions are stored (SB3 stores after on_step)
+                keep(self.model.replay_buffer, s.kept_rows)
+            if s.schedule.due(n, s.seconds):
+                s.validate(self.model, n, self.logger)
+                if s.plateaued(n):
+                    s.plateau_step = n
+                    return False
+            if s.stop.signal is not None:
+                return False
+            if s.cfg.time_limit is not None and s.seconds >= s.cfg.time_limit:
+                s.time_up = True
+                return False
+            if time.perf_counter() - s.last_checkpoint >= CHECKPOINT_SECONDS:  # noqa: SIM102
+                s.checkpoint(self.model)
+            return True
+
+    return RunCallback
+
+
+class Session:
+    """One process's share of a run: from a fresh start or a checkpoint to the end or a stop."""
+
+    def __init__(self, prog: Program, cfg: TrainConfig, run: RunDir, progress: Optional[TrainProgress],
+                 callbacks: Sequence = (), stop: Optional[Interrupts] = None):
+        import torch
+
+        from asap_dsl.env import make_vec_env
+
+        self.prog, self.cfg, self.run, self.progress = prog, cfg, run, progress
+        self.engine = get_engine(cfg.engine)
+        self.extra_callbacks = list(callbacks)
+        if cfg.torch_threads > 0:
+            torch.set_num_threads(cfg.torch_threads)
+        self.task = prog.task(cfg.task).model
+        self.tolerances = sorted(self.task.tolerances)
+        self.scaling = Scaling.for_run(prog.system, cfg, self.task.init_box)
+        self.raw_env = make_vec_env(prog, cfg.task, num_envs=cfg.n_envs, seed=cfg.seed, reward=cfg.reward,
+                                    failure_reward=cfg.failure_reward)
+        # The failed-starts curriculum (:mod:`.curriculum`) is the learner's alone: not the replays'.
+        self.curriculum = (failed_starts_env(self.raw_env, cfg.failed_starts, cfg.seed)
+                           if cfg.failed_starts > 0 else None)
+        self.env = self.learner_env(self.raw_env if self.curriculum is None else self.curriculum)
+        self.failure_reward = cfg.failure_reward  # the learner's reward of a failure step, as the discount has it
+        val_states = task_states(prog.system, self.task, cfg.validation_episodes, seed=cfg.validation_seed)
+        self.validator = Evaluator(prog, cfg.task, val_states, reward=cfg.reward)
+        self.curves: list[dict] = []
+        self.best: Optional[dict] = None
+        self.validations = max(1, cfg.steps // max(1, cfg.validate_every))
+        # A time-limited run validates on the clock too (:mod:`.validation`).
+        self.schedule = Schedule(cfg.validate_every, None if cfg.time_limit is None else cfg.time_limit / self.validations)
+        self.seconds_before = 0.0
+        # The default preset's demonstrations when the run needs them (:mod:`.exploration`), None
+        # where there are none.
+        self.late = (LateDemonstrations(cfg.late_demonstrations, get_preset(cfg.preset).late_after,
+                                        cfg.stall_demonstrations, cfg.plateau or get_preset(cfg.preset).plateau,
+                                        cfg.sparse_gamma)
+                     if cfg.late_demonstrations > 0 or cfg.stall_demonstrations > 0 else None)
+        self.stop = stop if stop is not None else Interrupts()
+        self.kept_rows = 0  # the demonstrations' rows of the replay buffer, never overwritten
+        self.time_up = False
+        self.plateau_step: Optional[int] = None  # where validation stopped improving, and the run ended
+        self.last_checkpoint = time.perf_counter()
+        self.started = time.perf_counter()
+
+    @property
+    def seconds(self) -> float:
+        return self.seconds_before + (time.perf_counter() - self.started)
+
+    def learner_env(self, raw):
+        """A raw vector env of the task as the learner sees it (scaled, the deadline's handling),
+        its episodes counted for stable-baselines3's ``rollout/ep_rew_mean`` and ``ep_len_mean``."""
+        from stable_baselines3.common.vec_env import VecMonitor
+
+        return VecMonitor(LearnerEnv(ScaledVecEnv(raw, self.scaling), self.cfg.time_limit_terminal))
+
+    def witnesses(self) -> Optional[Any]:
+        """A new run's demonstration sequences from the oracle (:mod:`.demonstrations`), before
+        the model is built (its workers are forked: not from a process running JAX). Their wall
+        time counts as the run's, the time limit's included. None where the run has none."""
+        from .demonstrations import longest, search_count, searcher, solve, unavailable
+
+        if self.cfg.demonstrations <= 0:
+            why = unavailable(self.prog, self.cfg.algo)
+            if why and get_preset(self.cfg.preset).demonstrations > 0:  # the preset's, withheld: say why
+                self._tell(f"demonstrations: none ({why})")
+            return None
+
+        def check_stop() -> None:
+            if self.stop.requested:
+                raise KeyboardInterrupt
+
+        budget = self.cfg.demonstration_seconds
+        count = search_count(self.prog, self.cfg.demonstrations, budget_seconds=budget)
+        self._tell(f"demonstrations: the {searcher(self.prog)} on {count:,} initial states of the run's own seed"
+                   + ("" if budget is None else f", for at most {budget:.0f} s") + " ...")
+        found = solve(self.prog, self.cfg.task, self.cfg.demonstrations, self.cfg.seed, budget_seconds=budget,
+                      check_stop=check_stop)
+        return longest(found, self.cfg.demonstration_share, self.cfg.demonstration_repeat)
+
+    def demonstrate(self, model, witnesses) -> dict:
+        """The witnesses' transitions into ``model``'s replay buffer, told to the progress display."""
+        from .demonstrations import add_demonstrations
+
+        demos = add_demonstrations(self.prog, self.cfg.task, model, self.learner_env, self.scaling, witnesses,
+                                   reward=self.cfg.reward, failure_reward=self.cfg.failure_reward)
+        self.seconds_before += demos.seconds
+        self.kept_rows = demos.rows
+        self.started = time.perf_counter()  # what came before is counted in the line above
+        if self.cfg.time_limit is not None:  # validations on the clock: spread over the time left
+            self.schedule.restart_clock(self.seconds_before, max(0.0, self.cfg.time_limit - self.seconds_before),
+                                        self.validations)
+        self._tell(demos.text())
+        return demos.to_dict()
+
+    def plateaued(self, steps: int) -> bool:
+        """Whether the run ends on the plateau rule (:func:`.validation.plateau_reached`), once
+        ``plateau_after`` of its steps are done. A run waits for the late demonstrations while they
+        may still come (it has found nothing, or a stall would bring them), and once they have come
+        it is judged on the validations after the latest alone."""
+        if self.cfg.plateau is None or steps < (self.cfg.plateau_after or 0.0) * self.cfg.steps:
+            return False
+        curves = self.curves
+        if self.late is not None:
+            if self.late.may_fire(curves):
+                return False
+            curves = self.late.recent(curves)
+        return plateau_reached(curves, steps, self.cfg.plateau)
+
+    def set_discount(self, model, gamma: float) -> None:
+        """The learner's discount becomes ``gamma`` mid-run (the late rule, :mod:`.exploration`).
+        A failure step earns the reward's floor for every step after it, ``floor / (1 - gamma)``:
+        its reward follows the discount, in the learner's steps and in those already stored (the
+        env's failure reward is compiled in; the stored ones are exactly that constant)."""
+        model.gamma = float(gamma)
+        if self.cfg.failure_reward is None:
+            return
+        was = self.failure_reward
+        start = float(self.cfg.hyper.get("gamma", 0.99))  # the discount cfg.failure_reward was made for
+        self.failure_reward = float(self.cfg.failure_reward) * (1.0 - start) / (1.0 - float(gamma))
+        self.env.venv.failure_reward = self.failure_reward
+        buffer = getattr(model, "replay_buffer", None)
+        if buffer is not None and was != self.failure_reward:
+            buffer.rewards[buffer.rewards == np.float32(was)] = np.float32(self.failure_reward)
+
+    def _tell(self, line: str) -> None:
+        note = getattr(self.progress, "note", None)  # optional in TrainProgress
+        if note is not None:
+            note(line)
+
+    def ceiling(self) -> Optional[dict]:
+        """The oracle's ceiling per tolerance on the evaluation states, when it is cached, for them
+        or the first of them (shown beside the validation rates; the oracle is never computed
+        during training)."""
+        from asap_dsl.sampling import EVAL_SEED
+
+        from ..oracle.cache import oracle_for
+
+        hit = oracle_for(self.prog, self.cfg.task, EVAL_SEED, self.cfg.eval_episodes, compute=False, partial=True)
+        return None if hit is None else {T: hit.ceiling(T)["rate"] for T in self.tolerances}
+
+    # -- validation
+    def validate(self, model, steps: int, logger=None) -> dict:
+        t0 = time.perf_counter()
+        res = self.validator.run(PolicyController(model, self.scaling))
+        rates = {T: res.rate(T) for T in self.tolerances}
+        score = validation_score(rates)
+        better = self.best is None or score >= self.best["score"]  # a tie: the later model, trained longer
+        row = {"steps": int(steps), "seconds": round(self.seconds, 3), "score": round(score, 6), "rates": rates,
+               "best": int(better), "return": round(float(np.mean(res.returns)), 6)}
+        self.curves.append(row)
+        if better:
+            self.best = dict(row)
+            self.run.save_model(lambda path: model.save(str(path)), best=self.best)
+        write_curves(self.run, self.curves, self.tolerances)
+        if logger is not None:
+            log_validation(model, logger, int(steps), rates, score)
+        self.schedule.done(int(steps), self.seconds, time.perf_counter() - t0)
+        if self.progress is not None:
+            self.progress.validated(row)
+        why = (None if self.late is None or self.time_up or steps >= self.cfg.steps  # not after the last
+               else self.late.due(self.curves, int(steps), self.cfg.steps, self.seconds, self.cfg.time_limit))
+        if why is not None:
+            add_late(self, model, int(steps), why)
+        return row
+
+    # -- checkpoints
+    def state(self, model) -> dict:
+        return {"steps": int(model.num_timesteps), "seconds": self.seconds, "best": self.best,
+                "curves": self.curves, "late_demonstrations": None if self.late is None else self.late.added,
+                "failed_starts": None if self.curriculum is None else self.curriculum.state(),
+                "demonstration_rows": self.kept_rows,
+                **self.schedule.to_dict()}
+
+    def checkpoint(self, model, run: Optional[RunDir] = None) -> None:
+        """A checkpoint of ``model`` into the run (or ``run``: a new run's first, before it is in place)."""
+        _save_checkpoint(run or self.run, model, self.raw_env, self.cfg.algo, self.state(model), self.engine,
+                         steps_done=int(model.num_timesteps), seconds=round(self.seconds, 3))
+        self.last_checkpoint = time.perf_counter()
+
+    def restore(self, ckpt: Checkpoint):
+        """The model and the session's state from a checkpoint whose files the manifest vouches for."""
+        try:
+            with open(ckpt.path("state.pkl"), "rb") as f:
+                state = pickle.load(f)
+            model = self.engine.load(self.cfg.algo, ckpt.path("model.zip"), env=self.env)
+            if self.cfg.algo in OFF_POLICY:
+                model.load_replay_buffer(str(ckpt.path("replay.pkl")))
+        except RunError:
+            raise
+        except Exception as err:  # noqa: BLE001 — matches its record, yet unloadable: a foreign or old file
+            raise RunError(f"{ckpt.directory}: the checkpoint cannot be loaded ({type(err).__name__}); train the run "
+                           f"again with `{self.run.command(self.run.read_manifest(), '--force')}`") from None
+        _set_rng_state(state["rng"], self.raw_env, model, self.engine)
+        self.best, self.curves = state["best"], list(state["curves"])
+        self.schedule.restore(state)
+        if self.late is not None:  # added before the checkpoint: never again
+            self.late.restore(state.get("late_demonstrations"))
+            if self.late.gamma is not None:  # the model keeps its discount; the failure step's reward follows it
+                self.set_discount(model, self.late.gamma)
+        self.kept_rows = int(state.get("demonstration_rows") or 0)
+        if self.curriculum is not None and state.get("failed_starts") is not None:
+            self.curriculum.restore(state["failed_starts"])
+        self.seconds_before = float(state["seconds"])
+        if int(model.num_timesteps) != int(state["steps"]):
+            raise RunError(f"{self.run.path}: the checkpoint is inconsistent (model at step {model.num_timesteps}, "
+                           f"state at step {state['steps']}); train the run again with "
+                           f"`{self.run.command(self.run.read_manifest(), '--force')}`")
+        return model
+
+    # -- the loop
+    def learn(self, model) -> str:
+        remaining = self.cfg.steps - int(model.num_timesteps)
+        if self.progress is not None:
+            self._tell(rule_text(self.cfg.validation_episodes, self.validations))
+            self.progress.start(self.cfg, int(model.num_timesteps), self.ceiling())
+        self.started = time.perf_counter()
+        self.last_checkpoint = self.started
+        try:
+            if remaining > 0 and self.stop.signal is None:
+                model.learn(total_timesteps=remaining, callback=[_callbacks()(self), *self.extra_callbacks],
+                            reset_num_timesteps=model.num_timesteps == 0, tb_log_name="train", progress_bar=False)
+            stopped = self.stop.signal is not None
+            if not stopped and (not self.curves or self.curves[-1]["steps"] != model.num_timesteps):
+                self.validate(model, int(model.num_timesteps), getattr(model, "_logger", None))
+            self.checkpoint(model)
+        finally:
+            if self.progress is not None:
+                self.progress.finish()
+        if self.plateau_step is not None:
+            self._tell(f"validation stopped improving: the run ends at step {self.plateau_step:,} of "
+                       f"{self.cfg.steps:,} (no gain over the latest {self.cfg.plateau:.0%} of its steps)")
+        if self.curves:
+            spent = self.schedule.spent
+            self._tell(f"validation: {len(self.curves)} times, {spent:.1f} s of the run's {self.seconds:.1f} s "
+                       f"({spent / max(self.seconds, 1e-9):.0%})")
+        return "interrupted" if stopped else "finished"
+
+
+def _wrapper_base():
+    from stable_baselines3.common.vec_env import VecEnvWrapper
+
+    return VecEnvWrapper
+
+
+class LearnerEnv(_wrapper_base()):
+    """With the time left in the observation, the deadline ends a finite-horizon problem: the
+    time-out is terminal (no bootstrapping past it). ``failure_reward`` (None: the env's) is a
+    failure step's reward once the discount changed mid-run (:meth:`Session.set_discount`)."""
+
+    def __init__(self, venv, terminal: bool):
+        super().__init__(venv)
+        self.terminal = terminal
+        self.failure_reward: Optional[float] = None
+
+    def reset(self):
+        return self.venv.reset()
+
+    def step_wait(self):
+        obs, reward, done, infos = self.venv.step_wait()
+        if done.any() and (self.terminal or self.failure_reward is not None):
+            for i in np.flatnonzero(done):
+                if self.failure_reward is not None and not infos[i].get("TimeLimit.truncated", False):
+                    reward[i] = self.failure_reward  # terminated before the deadline: a failure
+                if self.terminal:
+                    infos[i]["TimeLimit.truncated"] = False
+        return obs, reward, done, infos
