@@ -43,6 +43,9 @@ IPOPT_OPTIONS = {
     "ipopt.acceptable_tol": 1e-7,
     "ipopt.max_iter": 400,
     "ipopt.mu_strategy": "adaptive",
+    # A guess whose dynamics overflow is the solve's status (Invalid_Number_Detected: the search
+    # tries the next guess), not a CasADi warning on the user's terminal mid-progress.
+    "show_eval_warnings": False,
 }
 
 
