@@ -106,7 +106,8 @@ def test_a_killed_tuning_continues_without_running_finished_trials_again(spec, t
     assert "2 of 2 trials done (1 in this call" in err
     assert {d: (d / "run.json").stat().st_mtime_ns for d in before} == before  # not run again
     m = RunDir(first).read_manifest()
-    assert m["created"] == created and m["status"] == "finished" and m["steps_done"] >= 2000
+    assert m["created"] == created and m["status"] == "finished"
+    assert m["steps_done"] >= 2000 or "plateau_step" in m  # all its steps, or ended on its plateau (conftest.completed)
     assert killed_at > 0
     states = [t.state.name for t in _study(out).trials]
     assert states == ["COMPLETE", "FAIL", "COMPLETE"], states  # the killed one, then its continuation
