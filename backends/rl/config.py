@@ -106,6 +106,15 @@ class TrainConfig:
                 raise ConfigError(f"the stored configuration has {f.name} = {value!r}, not {_TYPE_WORDS[str(f.type)]}")
         return cls(**{k: data[k] for k in names if k in data})
 
+    def failure_reward_at(self, gamma: float) -> Optional[float]:
+        """The learner's reward of a failure step under the discount ``gamma`` (the late rule
+        changes it mid-run): the same floor earned for every step after it, ``floor / (1 - gamma)``
+        (:func:`_failure_reward`); None where the run has none."""
+        if self.failure_reward is None:
+            return None
+        floor = float(self.failure_reward) * (1.0 - float(self.hyper.get("gamma", 0.99)))
+        return floor / (1.0 - float(gamma))
+
     @property
     def key(self) -> dict:
         """What makes two runs the same experiment (a sweep reuses a run when these agree)."""

@@ -73,9 +73,10 @@ class LateDemonstrations:
     stall_states: int = 0
     stall: Optional[float] = None
     sparse_gamma: Optional[float] = None
-    added: list = field(default_factory=list)
+    added: list[dict] = field(default_factory=list)
 
     def fired(self, why: str) -> bool:
+        """Whether the trigger ``why`` has fired in this run."""
         return any(row.get("why") == why for row in self.added)
 
     @property

@@ -225,10 +225,8 @@ class Session:
         model.gamma = float(gamma)
         if self.cfg.failure_reward is None:
             return
-        was = self.failure_reward
-        start = float(self.cfg.hyper.get("gamma", 0.99))  # the discount cfg.failure_reward was made for
-        self.failure_reward = float(self.cfg.failure_reward) * (1.0 - start) / (1.0 - float(gamma))
-        self.env.venv.failure_reward = self.failure_reward
+        was, self.failure_reward = self.failure_reward, self.cfg.failure_reward_at(gamma)
+        self.env.venv.failure_reward = self.failure_reward  # the LearnerEnv under the VecMonitor
         buffer = getattr(model, "replay_buffer", None)
         if buffer is not None and was != self.failure_reward:
             buffer.rewards[buffer.rewards == np.float32(was)] = np.float32(self.failure_reward)
