@@ -314,11 +314,11 @@ def test_a_run_that_finds_nothing_gets_the_oracles_sequences_once(tmp_path, caps
         with open(out / "checkpoint" / "replay.pkl", "rb") as f:
             return int(pickle.load(f).pos)
 
-    # Validation may take a tenth of the training time, and without updates training is so fast
-    # that the second validation came at the last step (the rule never fired): here it may take all.
+    # Validation may step its states as many steps as training took: on this short run the second
+    # validation would come at the last step (the rule would never fire): here it may take more.
     from asap_dsl.backends.rl import validation
 
-    monkeypatch.setattr(validation, "BUDGET", 1.0)
+    monkeypatch.setattr(validation, "BUDGET", 1e9)
     STEPS = 8000
     base = ["train", spec, "--envs", 2, "--engine", "sb3", "--no-eval", "--out", out]
     code, _, err = asapc(capsys, *base, "--steps", STEPS)
@@ -369,7 +369,7 @@ def test_a_run_whose_validation_stalls_gets_the_oracles_longest_sequences_once(t
     out = tmp_path / "near"
     from asap_dsl.backends.rl import validation
 
-    monkeypatch.setattr(validation, "BUDGET", 1.0)  # enough validations in a fast run (see above)
+    monkeypatch.setattr(validation, "BUDGET", 1e9)  # enough validations in a fast run (see above)
     STEPS = 8000
     code, _, err = asapc(capsys, "train", spec, "--steps", STEPS, "--envs", 2, "--engine", "sb3", "--no-eval",
                          "--out", out)

@@ -270,7 +270,12 @@ def test_settings_precedence_flag_over_block_over_preset(tiny):
     assert paper.hyper["buffer_size"] == 5000 + 1  # never more memory than the run can fill
 
 
-def test_time_limit_ends_the_run_as_finished(tiny, tmp_path):
+def test_time_limit_ends_the_run_as_finished(tiny, tmp_path, monkeypatch):
+    from asap_dsl.backends.rl import validation
+
+    # Validation may step its states as many steps as training took: in 3 s this run trains about a
+    # thousand steps, a validation steps two thousand (the budget's rule is tested on its own).
+    monkeypatch.setattr(validation, "BUDGET", 1e9)
     # JAX's first compile (a cold cache) would fill the 3 s, and so would the oracle's demonstrations
     res = asap_dsl.train(tiny, steps=10_000_000, n_envs=2, out=tmp_path / "r", settings=FAST, time_limit=3.0,
                          eval_episodes=30, engine="sb3", demonstrations=0)

@@ -199,19 +199,22 @@ def test_a_short_run_validates_on_fewer_states():
     assert validation_states(10_000, 500) == 200
 
 
-def test_a_validation_waits_while_validation_has_taken_more_than_a_tenth_of_the_training():
+def test_a_validation_waits_while_validation_has_stepped_more_than_training():
     from asap_dsl.backends.rl.validation import Schedule
 
-    s = Schedule(every=64)
+    s = Schedule(every=64, cost=100)  # e.g. 10 states of an episode of at most 10 steps
     assert not s.due(63, 0.5) and s.due(64, 1.0)  # the first due one always runs
-    s.done(64, 3.0, cost=2.0)                     # ... and took 2 s
+    s.done(64, 3.0, cost=2.0)
     assert s.next_step == 128
-    assert not s.due(128, 4.0)   # 2 s of training so far: 4 s of validation would be 200%
-    assert not s.due(192, 41.0)  # 39 s of training: 4 s is 10.3%
-    assert s.due(193, 42.5)      # 40.5 s: within 10%
-    restored = Schedule(every=64)
-    restored.restore(s.to_dict())
-    assert (restored.spent, restored.last, restored.next_step) == (2.0, 2.0, 128)
+    assert not s.due(128, 4.0)   # two validations step 200 states: more than 128 training steps
+    assert not s.due(199, 1e6)   # ... whatever the clock says: a run is the same on every machine
+    assert s.due(200, 4.5)
+    restored = Schedule(every=64, cost=100)
+    restored.restore(s.to_dict(), validations=5)
+    assert (restored.count, restored.spent, restored.last, restored.next_step) == (1, 2.0, 2.0, 128)
+    old = {k: v for k, v in s.to_dict().items() if k != "validations"}  # a checkpoint from before the count
+    restored.restore(old, validations=1)
+    assert restored.count == 1 and not restored.due(199, 9.0)
 
 
 class _Notes:
@@ -231,7 +234,8 @@ def test_tensorboard_has_sb3s_rollout_means_beside_the_validations_at_the_curves
     notes = _Notes()
     res = asap_dsl.train(tiny, steps=600, n_envs=2, out=tmp_path / "r", settings=FAST, evaluate=False, engine="sb3",
                          progress=notes)
-    assert any(line.startswith("validation: 100 states, up to 30 times, each only while validation has taken at most 10%")
+    assert any(line.startswith("validation: 100 states, up to 30 times, each only while validation's steps stay "
+                                   "within 1x training's")
                for line in notes.lines)
     assert any(line.startswith(f"validation: {len(res.curves)} times, ") for line in notes.lines)
     (events,) = (tmp_path / "r" / "tb").iterdir()

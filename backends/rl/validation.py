@@ -3,9 +3,14 @@
 The rule (stated in the run's progress): a run validates on ``min(preset's states, max(100,
 steps / 50))`` states of its own seed, so a short run does not spend its time judging; at most the
 preset's number of times, evenly spaced in steps (or on the clock for a time-limited run); and a
-due validation waits while the validations so far plus one more would exceed 10% of the
-training time so far (the cost of one is the last one's, measured). The first due one always
-runs, and so does one at the end, on the final policy. A tie keeps the later model (trained
+due validation waits while the validations so far plus one more would step their states for more
+environment steps than training has taken (a validation steps each state for the task's longest
+episode at most). The first due one always runs, and so does one at the end, on the final policy.
+The budget is counted in steps, not seconds: validation steps its states in one batch while a
+training step carries its gradient updates, so this is a few per cent of the time, and unlike the
+clock it is the same on every machine. Measured on the clock, a run retried on a slower node (its
+first steps compiling) validated every period where the first try had waited, ended on its plateau
+at another step, and the sweep's report changed with the load. A tie keeps the later model (trained
 longer: a run whose validations all score 0 ends with its latest policy, not its first).
 
 Each validation is a row of ``curves.csv`` and, at the same step, TensorBoard's
@@ -25,8 +30,9 @@ import numpy as np
 __all__ = ["BUDGET", "PLATEAU_GAIN", "Schedule", "plateau_reached", "validation_score", "validation_states",
            "write_curves"]
 
-#: Validation time at most this share of the training time.
-BUDGET = 0.10
+#: Validation's environment steps (its states times the longest episode) at most this many times
+#: the training's.
+BUDGET = 1.0
 MIN_STATES = 100
 STEPS_PER_STATE = 50
 
@@ -63,20 +69,23 @@ def validation_states(steps: int, preset_states: int) -> int:
 
 def rule_text(states: int, validations: int) -> str:
     """The rule as the progress states it."""
-    return (f"validation: {states:,} states, up to {validations} times, each only while validation has taken at "
-            f"most {BUDGET:.0%} of the training time")
+    return (f"validation: {states:,} states, up to {validations} times, each only while validation's steps stay "
+            f"within {BUDGET:g}x training's")
 
 
 @dataclass
 class Schedule:
     """When a run validates: every ``every`` steps (and every ``every_seconds`` on the clock for a
-    time-limited run), within the budget. ``spent``: seconds of validation so far (kept in the
-    checkpoint), ``last``: the latest validation's seconds."""
+    time-limited run), within the budget: a validation costs ``cost`` environment steps (its
+    states times the task's longest episode). ``count``: validations so far; ``spent``: their
+    seconds (said at the end of a run), ``last``: the latest one's seconds (all kept in the checkpoint)."""
 
     every: int
     every_seconds: Optional[float] = None
+    cost: int = 0
     next_step: int = 0
     next_time: float = float("inf")
+    count: int = 0
     spent: float = 0.0
     last: float = 0.0
 
@@ -90,13 +99,13 @@ class Schedule:
         """A validation is due at ``steps`` after ``seconds`` of the run, and fits the budget."""
         if steps < self.next_step and seconds < self.next_time:
             return False
-        training = seconds - self.spent
-        if self.last > 0 and self.spent + self.last > BUDGET * training:
+        if self.count > 0 and (self.count + 1) * self.cost > BUDGET * steps:
             return False  # waits: it is retried at the next step
         return True
 
     def done(self, steps: int, seconds: float, cost: float) -> None:
         """A validation at ``steps`` took ``cost`` seconds; the next is a period later."""
+        self.count += 1
         self.spent += cost
         self.last = cost
         while self.next_step <= steps:
@@ -112,10 +121,14 @@ class Schedule:
             self.next_time = seconds + self.every_seconds
 
     def to_dict(self) -> dict:
-        return {"next_validation": self.next_step, "validation_seconds": self.spent, "last_validation_seconds": self.last}
+        return {"next_validation": self.next_step, "validations": self.count, "validation_seconds": self.spent,
+                "last_validation_seconds": self.last}
 
-    def restore(self, state: Mapping) -> None:
+    def restore(self, state: Mapping, validations: int) -> None:
+        """From a checkpoint's state; ``validations``: the run's curves' rows (a checkpoint from
+        before the count was kept)."""
         self.next_step = int(state["next_validation"])
+        self.count = int(state.get("validations", validations))
         self.spent = float(state.get("validation_seconds", 0.0))  # checkpoints from before the budget
         self.last = float(state.get("last_validation_seconds", 0.0))
 
