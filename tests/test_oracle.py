@@ -321,6 +321,22 @@ def test_workers_agree_with_single_process():
     assert one.label == "exact"
 
 
+@pytest.mark.parametrize("workers", [1, 2])
+def test_a_search_under_a_budget_stops_taking_states_and_keeps_what_it_solved(workers):
+    """The demonstrations' search: the states begun before the budget ran out, each as the
+    unbounded search solves it, in input order; a budget that is not spent solves them all."""
+    prog = asap_dsl.load(SPECS / "dc_motor.asap")
+    full = O.run(prog, "reach", episodes=200, workers=workers)
+    assert O.run(prog, "reach", episodes=200, workers=workers, budget_seconds=1e-9).results == []  # none begun
+    part = O.run(prog, "reach", episodes=200, workers=workers, budget_seconds=full.seconds / 4)
+    assert 0 < len(part.results) < 200
+    assert [r.index for r in part.results] == sorted(r.index for r in part.results)
+    by_index = {r.index: r.steps for r in full.results}
+    assert all(r.steps == by_index[r.index] for r in part.results)  # linear: exact minima, whatever the order
+    unspent = O.run(prog, "reach", episodes=200, workers=workers, budget_seconds=1e6)
+    assert list(unspent.steps) == list(full.steps)
+
+
 def test_wilson_interval():
     from asap_dsl.stats import wilson_interval
 

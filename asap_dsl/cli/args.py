@@ -82,6 +82,17 @@ def share_float(text: str) -> float:
     return value
 
 
+def weight_float(text: str) -> float:
+    """argparse type: a finite number of 0 or more."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number of 0 or more, got '{text}'") from None
+    if not 0.0 <= value < float("inf"):
+        raise argparse.ArgumentTypeError(f"expected a number of 0 or more, got {text}")
+    return value
+
+
 def seed_int(text: str) -> int:
     """argparse type: a seed, 0 .. 2^32 - 1."""
     value = _whole(text)

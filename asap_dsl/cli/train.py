@@ -18,7 +18,7 @@ from ..formatting import percent
 from ..runfiles import shown
 from .args import (InputError, UsageError, add_seed, add_task, check_task, natural_int, positive_amount, positive_int,
                    share_float,
-                   steps_int)
+                   steps_int, weight_float)
 
 __all__ = ["ConsoleProgress", "fill_train_subparser", "train_command", "validation_text"]
 
@@ -46,6 +46,10 @@ def fill_train_subparser(subparsers) -> argparse.ArgumentParser:
                    help="initial states whose oracle (or, on a black box, planner) action sequences go into the "
                         "replay buffer before learning (SAC, TD3, DDPG; default: the preset's, once validation "
                         "stalls or finds nothing; 0: none)")
+    p.add_argument("--imitation", type=weight_float, metavar="W",
+                   help="SAC's actor also imitates the oracle's minimum-time paths with this weight (sbx engine, "
+                        "known dynamics): the --demonstrations states' paths, or the preset's 2,500 states' within "
+                        "12 minutes, all in the replay buffer from the start (default: 0, none; 1 was measured)")
     p.add_argument("--failed-starts", type=share_float, metavar="P",
                    help="the share of new training episodes that start where an earlier one did not reach "
                         "(default: the preset's, 0.5; 0: none)")
@@ -157,6 +161,7 @@ def train_command(args: argparse.Namespace, out: Optional[TextIO] = None, err: O
                        progress=progress, evaluate=not args.no_eval,
                        time_limit=None if args.time_limit is None else 60.0 * args.time_limit,
                        demonstrations=args.demonstrations, failed_starts=args.failed_starts,
+                       imitation=args.imitation,
                        **_engine_options(args))
     except KeyError as e:  # an unknown task
         raise UsageError(e.args[0]) from None

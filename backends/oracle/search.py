@@ -230,19 +230,23 @@ class Oracle:
                            solves, lb, seconds=time.perf_counter() - start, restarts=restarts)
 
     def solve_many(self, states: np.ndarray, indices: Optional[Sequence[int]] = None,
-                   progress: Optional[Callable[[int], None]] = None) -> list[StateResult]:
+                   progress: Optional[Callable[[int], None]] = None,
+                   until: Optional[float] = None) -> list[StateResult]:
         """Solve ``states`` in nearest-neighbour order (warm starts), results in input order;
-        ``indices``: the results' indices (default 0, 1, ...); ``progress(1)`` after each state."""
+        ``indices``: the results' indices (default 0, 1, ...); ``progress(1)`` after each state.
+        ``until``: a wall-clock time (``time.time()``) after which no state is begun; the results
+        are then the solved states' alone."""
         states = np.asarray(states, float).reshape(-1, self.n)
         idx = list(range(len(states))) if indices is None else list(indices)
         order = nearest_neighbour_order(states, self.system)
         out: list[Optional[StateResult]] = [None] * len(states)
         for k in order:
+            if until is not None and time.time() >= until:
+                break
             out[k] = self.solve(states[k], idx[k])
             if progress is not None:
                 progress(1)
-
-        return out  # type: ignore[return-value]
+        return [r for r in out if r is not None] if until is not None else out  # type: ignore[return-value]
 
 
 def nearest_neighbour_order(states: np.ndarray, system) -> list[int]:

@@ -29,6 +29,7 @@ search used up its time, :data:`STATE_TIME_LIMIT` by default, before deciding: n
 
 from __future__ import annotations
 
+import itertools
 import signal
 import sys
 import time
@@ -105,6 +106,11 @@ def tighten(prog, reports: Sequence["OracleReport"]) -> dict[str, int]:
 
 
 # --------------------------------------------------------------------------- drivers
+#: States per chunk of a search under a budget (a worker stops within its chunk once the budget is
+#: spent). A chunk warm-starts along its part of the tour; at 8 states, a fifth of attitude's timed
+#: out at 5 s.
+BUDGET_CHUNK = 32
+
 _WORKER_ORACLES: dict = {}  # in a worker process: one Oracle (and its built solvers) per setting
 
 
@@ -120,20 +126,21 @@ def _worker(payload):
     process and setting: the chunks a worker solves share its solvers and warm starts."""
     import asap_dsl
 
-    source, name, task, states, indices, ipopt, restarts, interval_bound, time_limit = payload
+    source, name, task, states, indices, ipopt, restarts, interval_bound, time_limit, until = payload
     key = (source, name, task, repr(ipopt), restarts, interval_bound, time_limit)
     oracle = _WORKER_ORACLES.get(key)
     if oracle is None:
         _WORKER_ORACLES.clear()
         oracle = _WORKER_ORACLES[key] = Oracle(asap_dsl.loads(source, name), task, ipopt, restarts, interval_bound,
                                                time_limit)
-    return [r.to_dict(with_actions=True) for r in oracle.solve_many(states, indices)]
+    return [r.to_dict(with_actions=True) for r in oracle.solve_many(states, indices, until=until)]
 
 
 def run(prog, task: Optional[str] = None, episodes: int = 1000, seed: int = EVAL_SEED, workers: int = 1,
         states: Optional[np.ndarray] = None, ipopt_options: Optional[dict] = None,
         restarts: Optional[int] = None, interval_bound: bool = True,
-        time_limit: float = STATE_TIME_LIMIT, progress: Optional[Callable[[int], None]] = None) -> OracleReport:
+        time_limit: float = STATE_TIME_LIMIT, progress: Optional[Callable[[int], None]] = None,
+        budget_seconds: Optional[float] = None) -> OracleReport:
     """The oracle's minimum time from each of ``episodes`` seeded initial states (or the given
     ``states``) of one task.
 
@@ -153,6 +160,11 @@ def run(prog, task: Optional[str] = None, episodes: int = 1000, seed: int = EVAL
     :param interval_bound: start the search of non-linear systems at the interval lower bound.
     :param time_limit: seconds of search per state, then ``timeout``.
     :param progress: called as ``progress(k)`` when k more states are done.
+    :param budget_seconds: stop once these seconds are spent: the states are taken along the
+        tour in chunks of :data:`BUDGET_CHUNK`, and those not begun by then are left out
+        of the report (its ``results`` are then the solved states', in input order). The workers
+        and their solvers live for the whole search: a pool per chunk built every horizon's NLP
+        again and lost the warm starts (attitude: 1.2 s per state and worker, against 0.35 s).
     :return: the per-state results (in input order) and the ceiling per tolerance.
     :raises OracleUnsupported: a black-box system, or a task outside what the oracle solves.
     :raises KeyError: an unknown task.
@@ -168,26 +180,54 @@ def run(prog, task: Optional[str] = None, episodes: int = 1000, seed: int = EVAL
         used_seed = None
     states = np.asarray(states, float).reshape(-1, oracle.n)
     workers = pool_size(max(1, min(int(workers), len(states))))
-    if workers == 1:
+
+    # No state is begun after this wall-clock time (the workers read it too: the overrun is one state's).
+    until = None if budget_seconds is None else time.time() + max(0.0, budget_seconds - (time.perf_counter() - start))
+
+    def spent() -> bool:
+        return until is not None and time.time() >= until
+
+    if budget_seconds is None and workers == 1:
         results = oracle.solve_many(states, progress=progress)
+    elif workers == 1:
+        order = nearest_neighbour_order(states, prog.system)
+        by_index = {}
+        for lo in range(0, len(order), BUDGET_CHUNK):
+            if spent():
+                break
+            chunk = order[lo:lo + BUDGET_CHUNK]
+            for r in oracle.solve_many(states[chunk], indices=chunk, progress=progress, until=until):
+                by_index[r.index] = r
+        results = [by_index[i] for i in sorted(by_index)]
     else:
         import multiprocessing as mp
 
         order = nearest_neighbour_order(states, prog.system)
-        chunks = np.array_split(np.asarray(order), min(len(states), 8 * workers))
+        pieces = (min(len(states), 8 * workers) if budget_seconds is None
+                  else max(1, -(-len(states) // BUDGET_CHUNK)))
+        chunks = np.array_split(np.asarray(order), pieces)
         payloads = [(prog.source, prog.file, oracle.task_name, states[c], [int(i) for i in c], ipopt_options,
-                     restarts, interval_bound, time_limit) for c in chunks if len(c)]
+                     restarts, interval_bound, time_limit, until) for c in chunks if len(c)]
         # Forked where it is safe (quicker to start); spawned once JAX is loaded (`asapc eval` of an
         # sbx run): forking its threads may deadlock, and JAX warns the user so.
         method = "fork" if "fork" in mp.get_all_start_methods() and "jax" not in sys.modules else "spawn"
         parts = []
         with mp.get_context(method).Pool(workers, initializer=_init_worker) as pool:
-            for part in pool.imap_unordered(_worker, payloads):
+            pending = iter(payloads)
+            running = []
+            # Two chunks per worker in flight (one queued behind the one it solves), the next as one ends.
+            for payload in itertools.islice(pending, 2 * workers):
+                running.append(pool.apply_async(_worker, (payload,)))
+            while running:
+                part = running.pop(0).get()
                 parts.append(part)
                 if progress is not None:
                     progress(len(part))
+                nxt = None if spent() else next(pending, None)
+                if nxt is not None:
+                    running.append(pool.apply_async(_worker, (nxt,)))
         by_index = {d["index"]: StateResult.from_dict(d) for part in parts for d in part}
-        results = [by_index[i] for i in range(len(states))]
+        results = [by_index[i] for i in sorted(by_index)]
         for r in results:  # trajectories are not shipped back: replay here (cheap)
             if r.actions is not None:
                 r.trajectory, _ = oracle.replay(r.x0, r.actions)

@@ -43,7 +43,7 @@ _TYPE_WORDS = {"str": "a text", "int": "a whole number", "bool": "true or false"
 
 # Fields added after sweeps were made, with the value that means "off": left out of a run's key
 # (:attr:`TrainConfig.key`) while off, so that a finished run is still found by a sweep.
-_KEY_WHEN_SET = {"plateau": None, "plateau_after": None, "stall_demonstrations": 0}
+_KEY_WHEN_SET = {"plateau": None, "plateau_after": None, "stall_demonstrations": 0, "imitation": 0.0}
 
 
 @dataclass
@@ -77,6 +77,10 @@ class TrainConfig:
     demonstration_share: float = 1.0
     demonstration_repeat: int = 1
     demonstration_seconds: Optional[float] = None
+    # The actor imitates the demonstrations (all of them, kept as they are) with this weight
+    # (:mod:`.imitation`; 0: not), the oracle searching for them at most ``imitation_seconds``.
+    imitation: float = 0.0
+    imitation_seconds: Optional[float] = None
     failed_starts: float = 0.0  # the share of new episodes started where an earlier one failed (:mod:`.curriculum`)
     plateau: Optional[float] = None  # the run ends once this latest share of its steps brought validation nothing
     plateau_after: Optional[float] = None  # ... but not before this share of its steps
@@ -95,7 +99,8 @@ class TrainConfig:
         data = {"engine": REFERENCE, **data}  # a run from before engines: stable-baselines3 trained it
         missing = names - set(data) - {"time_limit", "demonstrations", "late_demonstrations", "observation_sources",
                                          "demonstration_share", "demonstration_repeat", "demonstration_seconds",
-                                         "failed_starts", "failure_reward", "sparse_gamma", *_KEY_WHEN_SET}  # runs from before them had none
+                                         "failed_starts", "failure_reward", "sparse_gamma", "imitation_seconds",
+                                         *_KEY_WHEN_SET}  # runs from before them had none
         if missing:
             raise ConfigError(f"the stored configuration lacks {', '.join(sorted(missing))}")
         for f in fields(cls):  # a manifest edited by hand: one sentence, not a crash deep in training
@@ -122,6 +127,7 @@ class TrainConfig:
         d.pop("validate_every", None)
         d.pop("time_limit", None)
         d.pop("demonstration_seconds", None)  # follows from the time limit
+        d.pop("imitation_seconds", None)
         # Acts only once the late rule found nothing (the manifest's late_demonstrations says so):
         # a run where it never fired, every benchmark's, is the same experiment with or without it.
         d.pop("sparse_gamma", None)
@@ -136,7 +142,7 @@ def resolve_config(prog, task: Optional[str] = None, *, algo: Optional[str] = No
                    n_envs: Optional[int] = None, settings: Optional[Mapping[str, Any]] = None,
                    eval_episodes: Optional[int] = None, time_limit: Optional[float] = None,
                    engine: Optional[str] = None, demonstrations: Optional[int] = None,
-                   failed_starts: Optional[float] = None) -> TrainConfig:
+                   failed_starts: Optional[float] = None, imitation: Optional[float] = None) -> TrainConfig:
     """Resolve the configuration of training ``task`` of ``prog``.
 
     ``settings`` are hyperparameters by their ``train { ... }`` names (they override the block
@@ -145,7 +151,10 @@ def resolve_config(prog, task: Optional[str] = None, *, algo: Optional[str] = No
     buffer before learning (default: the preset's where the algorithm has a replay buffer and the
     dynamics are known; 0: none); of their sequences the preset's longest share is kept.
     ``failed_starts``: the share of new training episodes that start at the initial state of an
-    earlier one that did not reach (:mod:`.curriculum`; default: the preset's). Raises
+    earlier one that did not reach (:mod:`.curriculum`; default: the preset's). ``imitation``: the
+    weight of the actor's imitation of the oracle's paths (:mod:`.imitation`; default: the
+    preset's; SAC on sbx with known dynamics only): their states are ``demonstrations`` or the
+    preset's ``imitation_states``, at the start, kept as they are. Raises
     :class:`ConfigError` (one sentence) or ``KeyError`` (unknown task).
     """
     t = prog.task(task).model  # KeyError with a suggestion on an unknown task
@@ -189,6 +198,21 @@ def resolve_config(prog, task: Optional[str] = None, *, algo: Optional[str] = No
 
     if demonstrations is None and p.demonstrations_at(searcher(prog) == "planner") == "stall":  # when the run stalls
         demos, stall = 0, demos
+    # The actor imitates the oracle's paths (SAC on sbx, known dynamics), the run's demonstrations
+    # or as many as the preset's budget buys, at the start; the stall rule stays.
+    weight = p.imitation if imitation is None else imitation
+    if isinstance(weight, bool) or not isinstance(weight, (int, float)) or not 0.0 <= weight < math.inf:
+        raise ConfigError(f"the imitation's weight must be a number of 0 or more; got {weight!r}")
+    imitation = 0.0
+    if weight > 0:
+        why = ("the oracle's paths need known dynamics (an ode or a map)" if searcher(prog) != "oracle"
+               else "only SAC on the sbx engine imitates" if (algo, engine) != ("sac", "sbx") else None)
+        if why is not None and p.imitation <= 0:  # asked for, not the preset's: say why not
+            raise ConfigError(f"--imitation: {why}; this run trains {algo.upper()} on {engine}")
+        if why is None and demonstrations != 0:
+            if demonstrations is None:
+                demos, stall = min(int(p.imitation_states), total // max(1, int(p.demonstration_steps))), stall
+            imitation = float(weight) if demos > 0 else 0.0
     restarts = p.failed_starts if failed_starts is None else failed_starts
     if isinstance(restarts, bool) or not isinstance(restarts, (int, float)) or not 0.0 <= restarts <= 1.0:
         raise ConfigError(f"failed starts must be a share between 0 and 1; got {restarts!r}")
@@ -227,6 +251,8 @@ def resolve_config(prog, task: Optional[str] = None, *, algo: Optional[str] = No
         observation_sources=sources,
         demonstration_share=p.demonstration_share, demonstration_repeat=p.demonstration_repeat,
         demonstration_seconds=p.demonstration_budget(time_limit), failed_starts=float(restarts),
+        imitation=imitation,
+        imitation_seconds=p.demonstration_budget(time_limit, imitation=True) if imitation else None,
         failure_reward=_failure_reward(prog, t, model, hyper, p.failure_forever), plateau=p.plateau,
         plateau_after=p.plateau_after if p.plateau is not None else None)
 

@@ -313,21 +313,14 @@ def solve(prog, task: str, count: int, run_seed: int, *, workers: Optional[int] 
         workers = 1 if "jax" in sys.modules and not black_box else available_cores()
     n_workers = max(1, min(int(workers), len(states)))
     progress = None if check_stop is None else (lambda _k: check_stop())
-    # Under a budget: batches of a few states per worker, so that the overrun is one batch's time.
-    batch = len(states) if budget_seconds is None or black_box else max(1, 8 * n_workers)
-    results = []
     try:
-        for lo in range(0, len(states), batch):
-            if budget_seconds is not None and results and time.perf_counter() - start >= budget_seconds:
-                break
-            chunk = states[lo:lo + batch]
-            if black_box:
-                report = plan_states(prog, task, states=chunk, workers=min(n_workers, len(chunk)),
-                                     time_limit=state_seconds, progress=progress)
-            else:
-                report = run_oracle(prog, task, states=chunk, workers=min(n_workers, len(chunk)),
-                                    time_limit=state_seconds, progress=progress)
-            results.extend(report.results)
+        if black_box:
+            report = plan_states(prog, task, states=states, workers=n_workers, time_limit=state_seconds,
+                                 progress=progress)
+        else:  # under a budget the oracle stops taking states once it is spent
+            report = run_oracle(prog, task, states=states, workers=n_workers, time_limit=state_seconds,
+                                progress=progress, budget_seconds=budget_seconds)
+        results = list(report.results)
     except (OracleUnsupported, PlannerUnsupported) as err:
         return Witnesses(seed, len(states), np.zeros((0, n)), [], np.zeros(0, np.int64),
                          time.perf_counter() - start, f"the {searcher(prog)} does not treat this task: {err}")

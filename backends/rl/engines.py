@@ -169,6 +169,10 @@ class SbxEngine(Engine):
         if not self.runs(algo):
             raise ValueError(f"the {self.name} engine has no {algo}")
         _configure_jax()
+        if algo == "sac":  # sbx's SAC, which imitates the oracle's paths when a run asks (:mod:`.imitation`)
+            from .imitation import imitating_sac
+
+            return imitating_sac()
         import sbx
 
         return getattr(sbx, algo.upper())

@@ -25,6 +25,7 @@ from asap_dsl.sampling import task_states
 from .config import TrainConfig
 from .curriculum import failed_starts_env
 from .demonstrations import keep
+from .imitation import IMITATION_STATE_SECONDS, set_imitation
 from .presets import OFF_POLICY, get_preset
 from .engines import Engine, get_engine
 from .exploration import LateDemonstrations, add_late
@@ -138,7 +139,8 @@ class Session:
         self.best: Optional[dict] = None
         self.validations = max(1, cfg.steps // max(1, cfg.validate_every))
         # A time-limited run validates on the clock too (:mod:`.validation`).
-        self.schedule = Schedule(cfg.validate_every, None if cfg.time_limit is None else cfg.time_limit / self.validations)
+        self.schedule = Schedule(cfg.validate_every, None if cfg.time_limit is None else cfg.time_limit / self.validations,
+                                 cost=cfg.validation_episodes * int(self.task.episode[1]))
         self.seconds_before = 0.0
         # The default preset's demonstrations when the run needs them (:mod:`.exploration`), None
         # where there are none.
@@ -180,12 +182,15 @@ class Session:
             if self.stop.requested:
                 raise KeyboardInterrupt
 
-        budget = self.cfg.demonstration_seconds
+        imitated = self.cfg.imitation > 0
+        budget = self.cfg.imitation_seconds if imitated else self.cfg.demonstration_seconds
         count = search_count(self.prog, self.cfg.demonstrations, budget_seconds=budget)
         self._tell(f"demonstrations: the {searcher(self.prog)} on {count:,} initial states of the run's own seed"
                    + ("" if budget is None else f", for at most {budget:.0f} s") + " ...")
         found = solve(self.prog, self.cfg.task, self.cfg.demonstrations, self.cfg.seed, budget_seconds=budget,
-                      check_stop=check_stop)
+                      check_stop=check_stop, **({"state_seconds": IMITATION_STATE_SECONDS} if imitated else {}))
+        if imitated:  # all of them, as they are: the actor imitates what it sees of the optimum
+            return found
         return longest(found, self.cfg.demonstration_share, self.cfg.demonstration_repeat)
 
     def demonstrate(self, model, witnesses) -> dict:
@@ -196,6 +201,7 @@ class Session:
                                    reward=self.cfg.reward, failure_reward=self.cfg.failure_reward)
         self.seconds_before += demos.seconds
         self.kept_rows = demos.rows
+        set_imitation(model, self.cfg.imitation, self.kept_rows)
         self.started = time.perf_counter()  # what came before is counted in the line above
         if self.cfg.time_limit is not None:  # validations on the clock: spread over the time left
             self.schedule.restart_clock(self.seconds_before, max(0.0, self.cfg.time_limit - self.seconds_before),
@@ -301,12 +307,13 @@ class Session:
                            f"again with `{self.run.command(self.run.read_manifest(), '--force')}`") from None
         _set_rng_state(state["rng"], self.raw_env, model, self.engine)
         self.best, self.curves = state["best"], list(state["curves"])
-        self.schedule.restore(state)
+        self.schedule.restore(state, len(self.curves))
         if self.late is not None:  # added before the checkpoint: never again
             self.late.restore(state.get("late_demonstrations"))
             if self.late.gamma is not None:  # the model keeps its discount; the failure step's reward follows it
                 self.set_discount(model, self.late.gamma)
         self.kept_rows = int(state.get("demonstration_rows") or 0)
+        set_imitation(model, self.cfg.imitation, self.kept_rows)
         if self.curriculum is not None and state.get("failed_starts") is not None:
             self.curriculum.restore(state["failed_starts"])
         self.seconds_before = float(state["seconds"])

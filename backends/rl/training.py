@@ -100,7 +100,8 @@ def train(spec: Union[str, Path, Program], task: Optional[str] = None, *, algo: 
           settings: Optional[Mapping[str, Any]] = None, progress: Optional[TrainProgress] = None,
           evaluate: bool = True, eval_episodes: Optional[int] = None, callbacks: Sequence = (),
           time_limit: Optional[float] = None, engine: Optional[str] = None,
-          demonstrations: Optional[int] = None, failed_starts: Optional[float] = None) -> TrainResult:
+          demonstrations: Optional[int] = None, failed_starts: Optional[float] = None,
+          imitation: Optional[float] = None) -> TrainResult:
     """Train ``task`` of a spec with stable-baselines3's API (on torch or JAX) and evaluate the
     best model.
 
@@ -140,6 +141,10 @@ def train(spec: Union[str, Path, Program], task: Optional[str] = None, *, algo: 
         the algorithm is off-policy and the dynamics known; 0: none). A resumed run keeps its own.
     :param failed_starts: the share of new training episodes that start at the initial state of an
         earlier one that did not reach (:mod:`asap_dsl.backends.rl.curriculum`; default: the preset's).
+    :param imitation: the weight of the actor's imitation of the oracle's paths
+        (:mod:`asap_dsl.backends.rl.imitation`: SAC on the sbx engine, known dynamics; default: the
+        preset's, 0 in both; 0: none). Its paths are the ``demonstrations`` states', or the preset's
+        ``imitation_states``, all of them in the replay buffer from the start.
     :return: the run's directory, configuration, steps, best validation and final evaluation.
     :raises asap_dsl.SpecError: the spec does not load.
     :raises ConfigError: a setting cannot be used (one sentence).
@@ -151,13 +156,14 @@ def train(spec: Union[str, Path, Program], task: Optional[str] = None, *, algo: 
         prog = _program(spec)
         cfg = resolve_config(prog, task, algo=algo, reward=reward, steps=steps, seed=seed, preset=preset,
                              n_envs=n_envs, settings=settings, eval_episodes=eval_episodes, time_limit=time_limit,
-                             engine=engine, demonstrations=demonstrations, failed_starts=failed_starts)
+                             engine=engine, demonstrations=demonstrations, failed_starts=failed_starts,
+                             imitation=imitation)
         _check_memory(prog, cfg)
         run = RunDir(out if out is not None else Path(runs_dir) / default_run_name(prog.file, cfg.task, cfg.algo,
                                                                                  cfg.reward, cfg.seed))
         given = {"task": task, "algo": algo, "engine": engine, "reward": reward, "seed": seed, "preset": preset,
                  "n_envs": n_envs, "demonstrations": demonstrations,
-                 "failed_starts": failed_starts,
+                 "failed_starts": failed_starts, "imitation": imitation,
                  "settings": _hyper.normalise(dict(settings or {}), "settings")}  # as the run stores them
         try:
             return _run(prog, cfg, run, stop, resume=resume, force=force, given=given, steps=steps,
