@@ -273,7 +273,8 @@ def search_count(prog, count: int, state_seconds: float = DEMONSTRATION_STATE_SE
 
 def solve(prog, task: str, count: int, run_seed: int, *, workers: Optional[int] = None,
           state_seconds: float = DEMONSTRATION_STATE_SECONDS, budget_seconds: Optional[float] = None,
-          check_stop: Optional[Callable[[], None]] = None, cache: bool = True) -> Witnesses:
+          check_stop: Optional[Callable[[], None]] = None, cache: bool = True,
+          restarts: Optional[int] = None) -> Witnesses:
     """Draw ``count`` initial states of ``task`` (seed :func:`demonstration_seed` of ``run_seed``)
     and solve them with the oracle (``workers`` processes; default one per core, or one where
     JAX is loaded already, as in a sweep's worker after its first run). With ``budget_seconds``
@@ -281,7 +282,8 @@ def solve(prog, task: str, count: int, run_seed: int, *, workers: Optional[int] 
     states not reached are left out). A sequence longer than the task's longest episode is left
     out, as is a state already in the goal; each replay's episode length is drawn from the task's
     range, at least its sequence's length. ``check_stop()`` is called as the oracle progresses (it
-    raises to abandon the search).
+    raises to abandon the search). ``restarts``: the oracle's extra initial guesses per horizon
+    (default: its own, :data:`~asap_dsl.backends.oracle.search.RESTARTS` on non-linear dynamics).
 
     With ``cache``, what was found is kept beside the oracle's cache (per spec hash, task, seed,
     count, time per state and budget) and read back by the next run that asks the same: a sweep's
@@ -303,7 +305,8 @@ def solve(prog, task: str, count: int, run_seed: int, *, workers: Optional[int] 
     asked = int(count)
     count = search_count(prog, count, state_seconds, budget_seconds)
     # The planner's entries are named by the states it searched (their number is the rule's, not the ask's).
-    path = _cache_path(prog, task, seed, count if black_box else asked, state_seconds, budget_seconds) if cache else None
+    path = (_cache_path(prog, task, seed, count if black_box else asked, state_seconds, budget_seconds, restarts)
+            if cache else None)
     if path is not None:
         hit = _load(path, n)
         if hit is not None:
@@ -319,7 +322,7 @@ def solve(prog, task: str, count: int, run_seed: int, *, workers: Optional[int] 
                                  progress=progress)
         else:  # under a budget the oracle stops taking states once it is spent
             report = run_oracle(prog, task, states=states, workers=n_workers, time_limit=state_seconds,
-                                progress=progress, budget_seconds=budget_seconds)
+                                progress=progress, budget_seconds=budget_seconds, restarts=restarts)
         results = list(report.results)
     except (OracleUnsupported, PlannerUnsupported) as err:
         return Witnesses(seed, len(states), np.zeros((0, n)), [], np.zeros(0, np.int64),
@@ -346,14 +349,16 @@ def solve(prog, task: str, count: int, run_seed: int, *, workers: Optional[int] 
     return found
 
 
-def _cache_path(prog, task: str, seed: int, count: int, state_seconds: float, budget: Optional[float]):
+def _cache_path(prog, task: str, seed: int, count: int, state_seconds: float, budget: Optional[float],
+                restarts: Optional[int] = None):
     from asap_dsl.runs import spec_hash
 
     from ..oracle.cache import cache_dir
 
     bound = "none" if budget is None else f"{float(budget):g}"
     return (cache_dir() / "demonstrations"
-            / f"{spec_hash(prog.source)[:16]}-{task}-s{seed}-n{count}-t{float(state_seconds):g}-b{bound}.json")
+            / (f"{spec_hash(prog.source)[:16]}-{task}-s{seed}-n{count}-t{float(state_seconds):g}-b{bound}"
+               + ("" if restarts is None else f"-r{int(restarts)}") + ".json"))
 
 
 def _load(path, n: int) -> Optional[Witnesses]:

@@ -188,7 +188,8 @@ class Session:
         self._tell(f"demonstrations: the {searcher(self.prog)} on {count:,} initial states of the run's own seed"
                    + ("" if budget is None else f", for at most {budget:.0f} s") + " ...")
         found = solve(self.prog, self.cfg.task, self.cfg.demonstrations, self.cfg.seed, budget_seconds=budget,
-                      check_stop=check_stop, **({"state_seconds": IMITATION_STATE_SECONDS} if imitated else {}))
+                      check_stop=check_stop,
+                      **({"state_seconds": IMITATION_STATE_SECONDS, "restarts": 0} if imitated else {}))
         if imitated:  # all of them, as they are: the actor imitates what it sees of the optimum
             return found
         return longest(found, self.cfg.demonstration_share, self.cfg.demonstration_repeat)
