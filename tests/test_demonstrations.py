@@ -429,3 +429,61 @@ def test_the_demonstrations_stay_in_the_buffer_once_it_wraps_round():
     big.full, big.pos = True, 0
     keep(big, 2)  # half of the buffer: not kept
     assert big.pos == 0
+
+
+def test_make_room_grows_a_buffer_that_has_not_wrapped_and_leaves_one_that_has():
+    """The late rule's paths for the actor to imitate come mid-run: the buffer grows by their rows
+    (what it held stays where it was), unless it has wrapped round already."""
+    from gymnasium import spaces
+    from stable_baselines3.common.buffers import ReplayBuffer
+
+    from asap_dsl.backends.rl.demonstrations import make_room
+
+    box = spaces.Box(-1, 1, (1,), np.float32)
+    rb = ReplayBuffer(10, box, box, n_envs=2)  # 5 rows of 2
+    for v in range(3):
+        rb.add(np.full((2, 1), v), np.full((2, 1), v), np.zeros((2, 1)), np.zeros(2), np.zeros(2, bool), [{}, {}])
+    make_room(rb, 7)  # 7 transitions: 4 rows of 2
+    assert rb.buffer_size == 9 and rb.pos == 3 and not rb.full
+    for name in ("observations", "next_observations", "actions", "rewards", "dones", "timeouts"):
+        assert getattr(rb, name).shape[0] == 9, name
+    assert list(rb.observations[:3, 0, 0]) == [0, 1, 2] and not rb.observations[3:].any()
+    rb.full, rb.pos = True, 1
+    make_room(rb, 7)
+    assert rb.buffer_size == 9
+
+
+def test_a_run_on_sbx_that_finds_nothing_imitates_the_oracles_paths_from_then_on(tmp_path, capsys, monkeypatch):
+    """On SAC with sbx the late rule's search is the imitation's (the preset's states within its
+    budget, spawned workers since JAX is loaded): its paths go into rows the buffer grows by, the
+    manifest records where, and a resume neither searches again nor forgets them."""
+    from dataclasses import replace
+
+    from asap_dsl.backends.rl import presets, validation
+
+    monkeypatch.setattr(validation, "BUDGET", 1e9)
+    monkeypatch.setitem(presets.PRESETS, "default",
+                        replace(presets.DEFAULT, imitation_states=12, imitation_seconds=120.0))
+    far = RAIL.replace("init [-1.5, 1.5]", "init [-1.5, -0.5]").replace(
+        "tolerances 20, 10, 5", "tolerances 20, 10, 5\n  train { learning_starts = 10000 }")
+    spec = tmp_path / "far.asap"
+    spec.write_text(far)
+    out = tmp_path / "far"
+    STEPS = 8000
+    code, _, err = asapc(capsys, "train", spec, "--envs", 2, "--no-eval", "--out", out, "--steps", STEPS)
+    assert code == 0 and "the actor imitates these paths from now on (weight 1)" in err, err
+    m = RunDir(out).read_manifest()
+    late = m["late_demonstrations"][0]
+    assert m["config"]["sparse_imitation"] == 1.0
+    assert late["why"] == "nothing found" and late["imitation"] == 1.0 and late["states"] == 12 and late["added"] >= 10
+    with open(out / "checkpoint" / "replay.pkl", "rb") as f:
+        rb = pickle.load(f)
+    # Their rows follow the learner's own, in room made for them: nothing of either is overwritten.
+    assert late["start_row"] > 0 and late["rows"] == -(-late["transitions"] // 2)
+    # (a stall may have fired after it too: its rows are in the count)
+    firings = sum(r["rows"] for r in m["late_demonstrations"])
+    assert not rb.full and rb.pos == firings + m["steps_done"] // 2 - ("plateau_step" in m)
+    stored = rb.actions[late["start_row"]:late["start_row"] + late["rows"]]
+    assert np.abs(stored).max() <= 1.0 and np.abs(stored).max() > 0  # the oracle's actions, in the policy's units
+    code, _, err = asapc(capsys, "train", spec, "--out", out, "--resume", "--steps", STEPS + 60, "--no-eval")
+    assert code == 0 and "no validation has succeeded after" not in err, err

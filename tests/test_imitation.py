@@ -89,6 +89,17 @@ def test_imitation_is_asked_for_and_then_on_known_dynamics_with_sac_on_sbx_only(
     assert "imitation" not in resolve_config(prog, steps=2_000_000).key  # runs from before it keep their key
 
 
+def test_the_late_rule_imitates_where_a_run_could_and_leaves_the_key_alone():
+    prog = asap_dsl.loads(RAIL, "rail.asap")
+    cfg = resolve_config(prog, steps=2_000_000)
+    assert cfg.sparse_imitation == DEFAULT.sparse_imitation > 0 and cfg.imitation_states == DEFAULT.imitation_states
+    assert cfg.imitation_seconds == DEFAULT.imitation_seconds
+    assert "sparse_imitation" not in cfg.key and "imitation_states" not in cfg.key  # acts only once it fired
+    for other in (dict(algo="td3"), dict(engine="sb3"), dict(imitation=1.0), dict(demonstrations=0),
+                  dict(preset="paper")):
+        assert resolve_config(prog, steps=2_000_000, **other).sparse_imitation == 0.0, other
+
+
 def test_a_run_with_imitation_keeps_it_across_a_resume_and_says_its_demonstrations(tiny, tmp_path, capsys):
     from conftest import asapc
 

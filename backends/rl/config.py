@@ -81,6 +81,11 @@ class TrainConfig:
     # (:mod:`.imitation`; 0: not), the oracle searching for them at most ``imitation_seconds``.
     imitation: float = 0.0
     imitation_seconds: Optional[float] = None
+    # ... or, once the late rule found nothing, with this weight the paths it then searches for
+    # (:mod:`.exploration`; 0: its few sequences alone), as many as ``imitation_states`` or the
+    # seconds above buy.
+    sparse_imitation: float = 0.0
+    imitation_states: int = 0
     failed_starts: float = 0.0  # the share of new episodes started where an earlier one failed (:mod:`.curriculum`)
     plateau: Optional[float] = None  # the run ends once this latest share of its steps brought validation nothing
     plateau_after: Optional[float] = None  # ... but not before this share of its steps
@@ -100,6 +105,7 @@ class TrainConfig:
         missing = names - set(data) - {"time_limit", "demonstrations", "late_demonstrations", "observation_sources",
                                          "demonstration_share", "demonstration_repeat", "demonstration_seconds",
                                          "failed_starts", "failure_reward", "sparse_gamma", "imitation_seconds",
+                                         "sparse_imitation", "imitation_states",
                                          *_KEY_WHEN_SET}  # runs from before them had none
         if missing:
             raise ConfigError(f"the stored configuration lacks {', '.join(sorted(missing))}")
@@ -131,6 +137,8 @@ class TrainConfig:
         # Acts only once the late rule found nothing (the manifest's late_demonstrations says so):
         # a run where it never fired, every benchmark's, is the same experiment with or without it.
         d.pop("sparse_gamma", None)
+        d.pop("sparse_imitation", None)  # the same
+        d.pop("imitation_states", None)
         for name, off in _KEY_WHEN_SET.items():  # a rule added since: runs without it keep their key
             if d.get(name) == off:
                 d.pop(name, None)
@@ -218,6 +226,10 @@ def resolve_config(prog, task: Optional[str] = None, *, algo: Optional[str] = No
         raise ConfigError(f"failed starts must be a share between 0 and 1; got {restarts!r}")
     # The preset's rule for sparse goals, unless the run chose its demonstrations (0 included).
     late = 0 if demonstrations is not None else _demonstrations(prog, algo, None, p.late_demonstrations)
+    # ... and where nothing is found, the actor imitates the paths the oracle then finds (SAC on
+    # sbx, known dynamics; not where the run imitates from the start).
+    sparse_imitation = (float(p.sparse_imitation) if late and imitation == 0 and searcher(prog) == "oracle"
+                        and (algo, engine) == ("sac", "sbx") else 0.0)
     sparse_gamma = None
     if late and p.sparse_horizon is not None and "gamma" not in block and "gamma" not in (settings or {}):
         longer = discount(t.deadline, p.sparse_horizon)
@@ -251,8 +263,9 @@ def resolve_config(prog, task: Optional[str] = None, *, algo: Optional[str] = No
         observation_sources=sources,
         demonstration_share=p.demonstration_share, demonstration_repeat=p.demonstration_repeat,
         demonstration_seconds=p.demonstration_budget(time_limit), failed_starts=float(restarts),
-        imitation=imitation,
-        imitation_seconds=p.demonstration_budget(time_limit, imitation=True) if imitation else None,
+        imitation=imitation, sparse_imitation=sparse_imitation,
+        imitation_seconds=p.demonstration_budget(time_limit, imitation=True) if imitation or sparse_imitation else None,
+        imitation_states=int(p.imitation_states) if sparse_imitation else 0,
         failure_reward=_failure_reward(prog, t, model, hyper, p.failure_forever), plateau=p.plateau,
         plateau_after=p.plateau_after if p.plateau is not None else None)
 

@@ -69,7 +69,8 @@ class Demonstrations:
     replays: int = 0
     added: int = 0
     transitions: int = 0
-    rows: int = 0  # the replay buffer's rows they fill (from its first): kept for the whole run (:func:`keep`)
+    rows: int = 0  # the replay buffer's rows they fill (at the start: kept for the whole run, :func:`keep`)
+    start_row: int = 0  # ... from this one (0 at the start of a run; the late rule's come later)
     oracle_seconds: float = 0.0
     seconds: float = 0.0
     seed: Optional[int] = None
@@ -213,6 +214,22 @@ def keep(replay_buffer, rows: int) -> None:
     or more, nothing is kept (the learner's own transitions need the room)."""
     if 0 < rows < replay_buffer.buffer_size // 2 and replay_buffer.full and replay_buffer.pos < rows:
         replay_buffer.pos = rows
+
+
+def make_room(replay_buffer, transitions: int) -> None:
+    """Grow a replay buffer that has not yet wrapped round by the rows ``transitions`` fill, so
+    that storing them mid-run overwrites nothing later (the late rule's paths for the actor to
+    imitate, :mod:`.exploration`): the buffer was sized for the run's own steps, and a run where
+    the rule never fires pays no memory for them. A buffer that has wrapped stays as it is."""
+    n = replay_buffer.n_envs
+    extra = -(-int(transitions) // n)
+    if extra <= 0 or replay_buffer.full:
+        return
+    for name in ("observations", "next_observations", "actions", "rewards", "dones", "timeouts"):
+        a = getattr(replay_buffer, name, None)
+        if isinstance(a, np.ndarray) and a.ndim >= 2 and a.shape[0] == replay_buffer.buffer_size:
+            setattr(replay_buffer, name, np.concatenate([a, np.zeros((extra, *a.shape[1:]), a.dtype)]))
+    replay_buffer.buffer_size += extra
 
 
 @dataclass
@@ -388,16 +405,18 @@ def longest(witnesses: Witnesses, share: float = 1.0, repeat: int = 1) -> Witnes
 
 
 def add_demonstrations(prog, task: str, model, wrap: Callable, scaling, witnesses: Witnesses,
-                       reward: Any = None, failure_reward: Optional[float] = None) -> Demonstrations:
+                       reward: Any = None, failure_reward: Optional[float] = None,
+                       grow: bool = False) -> Demonstrations:
     """Replay each of the oracle's sequences through the learner's environment (``wrap`` and
     ``scaling``: :class:`~asap_dsl.backends.rl.sb3.Scaling`) and store the transitions of those
-    that reach the goal in ``model.replay_buffer``; returns what was done."""
+    that reach the goal in ``model.replay_buffer`` (with ``grow``, in rows it adds for them:
+    :func:`make_room`); returns what was done."""
     start = time.perf_counter()
     w = witnesses
     if w.reason is not None:
         return Demonstrations(states=w.states, seed=w.seed, oracle_seconds=w.oracle_seconds,
                               seconds=w.oracle_seconds, reason=w.reason, searcher=searcher(prog))
-    added = stored = rows = 0
+    added = stored = rows = first_row = 0
     if w.sequences:
         def buffer_action(u: np.ndarray) -> np.ndarray:  # as SB3's _sample_action stores it
             return np.clip(model.policy.scale_action(u), -1.0, 1.0)
@@ -405,8 +424,11 @@ def add_demonstrations(prog, task: str, model, wrap: Callable, scaling, witnesse
         tr, reached = replay(prog, task, reward, wrap, scaling.policy_action, buffer_action, w.starts, w.sequences,
                              w.lengths, failure_reward)
         added, stored = int(reached.sum()), len(tr)
+        if grow:
+            make_room(model.replay_buffer, stored)
+        first_row = int(model.replay_buffer.pos)
         rows = store(model.replay_buffer, tr) // model.replay_buffer.n_envs
     return Demonstrations(states=w.states, solved=int(w.solved), replays=len(w.sequences), added=added,
-                          transitions=stored, rows=rows, cached=w.cached,
+                          transitions=stored, rows=rows, start_row=first_row, cached=w.cached,
                           oracle_seconds=w.oracle_seconds, seconds=w.oracle_seconds + time.perf_counter() - start,
                           seed=w.seed, searcher=searcher(prog))

@@ -23,7 +23,10 @@ the start, ``black_box_demonstrations_when``): at a validation, each trigger at 
   states (15 s each at most) and their replays go into the replay buffer. Such a task is one whose
   dense reward leads away from the goal (a swing-up, a detour), so the discount's horizon, a share
   of the deadline chosen for tasks where it does not, grows to the preset's ``sparse_horizon``
-  share (the run's ``sparse_gamma``; not where the run set its own ``gamma``);
+  share (the run's ``sparse_gamma``; not where the run set its own ``gamma``); and where the
+  preset's ``sparse_imitation`` is on (SAC on sbx), the oracle solves as many of
+  ``imitation_states`` as the imitation's budget buys instead (on every core), all their paths go
+  into the replay buffer (grown for them) and the actor imitates them from then on (:mod:`.imitation`);
 - *stalled*: validation has stopped improving as the plateau rule judges it
   (:func:`~.validation.plateau_reached`, the run's share, on the validations since the last
   firing; the plateau's floor does not apply) and some tolerance is still short of 100% — a
@@ -41,6 +44,7 @@ had (PPO or A2C) or the run asked for its own (``--demonstrations N``, 0 include
 
 from __future__ import annotations
 
+import sys
 import time
 from dataclasses import dataclass, field
 from typing import Any, Mapping, Optional, Sequence
@@ -73,6 +77,8 @@ class LateDemonstrations:
     stall_states: int = 0
     stall: Optional[float] = None
     sparse_gamma: Optional[float] = None
+    imitation: float = 0.0  # the actor's weight on the paths found once nothing was (0: a few sequences alone)
+    imitation_states: int = 0
     added: list[dict] = field(default_factory=list)
 
     def fired(self, why: str) -> bool:
@@ -88,6 +94,11 @@ class LateDemonstrations:
     def gamma(self) -> Optional[float]:
         """The discount a firing set (None: the run's own)."""
         return next((row["gamma"] for row in reversed(self.added) if row.get("gamma") is not None), None)
+
+    @property
+    def imitated(self) -> Optional[dict]:
+        """The firing whose paths the actor imitates (None: none)."""
+        return next((row for row in self.added if row.get("imitation")), None)
 
     @property
     def waits_for_stall(self) -> bool:
@@ -145,12 +156,16 @@ def add_late(session, model, steps: int, why: str = NOTHING) -> Optional[dict]:
     progress and recorded in the manifest (``late_demonstrations``, the list of firings). Returns
     what was added (:class:`~.demonstrations.Demonstrations` as a dict with ``at_step``, ``why``
     and any new ``gamma``), or None when a stop was requested meanwhile (the rule then stays due)."""
+    from asap_dsl.limits import available_cores
+
     from .demonstrations import DEMONSTRATION_STATE_SECONDS, add_demonstrations, longest, search_count, searcher, solve
+    from .imitation import IMITATION_STATE_SECONDS, set_imitation
 
     rule: LateDemonstrations = session.late
     cfg = session.cfg
     stalled = why == STALLED
-    states = rule.stall_states if stalled else rule.states
+    imitated = not stalled and rule.imitation > 0 and rule.imitation_states > 0
+    states = rule.stall_states if stalled else rule.imitation_states if imitated else rule.states
 
     def check_stop() -> None:
         if session.stop.requested:
@@ -158,18 +173,22 @@ def add_late(session, model, steps: int, why: str = NOTHING) -> Optional[dict]:
 
     who = searcher(session.prog)
     began = time.perf_counter()
-    budget = cfg.demonstration_seconds if stalled else None
-    per_state = DEMONSTRATION_STATE_SECONDS if stalled else LATE_STATE_SECONDS
+    budget = cfg.demonstration_seconds if stalled else cfg.imitation_seconds if imitated else None
+    per_state = (DEMONSTRATION_STATE_SECONDS if stalled else IMITATION_STATE_SECONDS if imitated
+                 else LATE_STATE_SECONDS)
     head = (f"validation stopped improving after {steps:,} steps" if stalled
             else f"no validation has succeeded after {steps:,} steps")
     count = search_count(session.prog, states, per_state, budget)
     session._tell(f"{head}: the {who} on {count:,} initial states of the run's own seed for demonstrations"
                   + ("" if budget is None else f", for at most {budget:.0f} s") + " ...")
+    # The oracle in one process: forking one that runs a learner (JAX's or torch's threads) is not
+    # safe. The planner's workers are spawned, and so are the oracle's once JAX is loaded (the
+    # imitation's search: sbx): 1,069 pendulum states in 745 s on the 2 cores.
+    workers = (None if who == "planner" else available_cores() if imitated and "jax" in sys.modules else 1)
     try:
-        # The oracle in one process: forking one that runs a learner (JAX's or torch's threads) is
-        # not safe. The planner's workers are spawned.
-        witnesses = solve(session.prog, cfg.task, states, cfg.seed, workers=None if who == "planner" else 1,
-                          state_seconds=per_state, budget_seconds=budget, check_stop=check_stop)
+        witnesses = solve(session.prog, cfg.task, states, cfg.seed, workers=workers, state_seconds=per_state,
+                          budget_seconds=budget, check_stop=check_stop,
+                          **({"restarts": 0} if imitated else {}))
     except _Stopped:
         return None
     if stalled:  # as demonstrations from the start: the long manoeuvres, weighted
@@ -180,11 +199,15 @@ def add_late(session, model, steps: int, why: str = NOTHING) -> Optional[dict]:
         session._tell(f"the discount's horizon grows to the deadline: gamma {float(model.gamma):g} -> {gamma:g}")
         session.set_discount(model, gamma)
     demos = add_demonstrations(session.prog, cfg.task, model, session.learner_env, session.scaling, witnesses,
-                               reward=cfg.reward, failure_reward=session.failure_reward)
+                               reward=cfg.reward, failure_reward=session.failure_reward, grow=imitated)
     # Charged the search's seconds, as at the start: read back from the cache it took none here.
     session.seconds_before += max(0.0, demos.seconds - (time.perf_counter() - began))
     row = {**demos.to_dict(), "at_step": int(steps), "why": why, **({} if gamma is None else {"gamma": gamma})}
     rule.added.append(row)
     session._tell(demos.text())
+    if imitated and demos.rows > 0:
+        row["imitation"] = float(rule.imitation)
+        set_imitation(model, rule.imitation, demos.rows, demos.start_row)
+        session._tell(f"the actor imitates these paths from now on (weight {rule.imitation:g})")
     session.run.update_manifest(late_demonstrations=rule.added)
     return row

@@ -9,7 +9,8 @@ ceiling at every tolerance however long it trained, while a network of the same 
 docs/training.md "Imitating the oracle at scale"): the gap was the learner's, not the policy's.
 
 Here the actor's loss is SAC's plus an imitation term on a batch of the demonstrations drawn at
-each gradient step (the rows the run keeps at the start of its replay buffer): the squared
+each gradient step (the rows the run keeps at the start of its replay buffer, or those the late
+rule stored when the run found nothing, :mod:`.exploration`): the squared
 distance of the policy's mean action from the oracle's, weighted ``imitation_weight`` times the
 batch's mean |Q| (as TD3+BC normalises, so that the weight does not depend on the reward's
 scale). SAC still learns from the reward; where the oracle's paths do not go, the critic leads.
@@ -38,11 +39,13 @@ ACTION_MARGIN = 0.03
 _ImitatingSAC = None
 
 
-def set_imitation(model, weight: float, rows: int) -> None:
-    """The model's actor imitates the first ``rows`` rows of its replay buffer (the oracle's
-    transitions a run keeps there) with ``weight``; 0 for either turns imitation off."""
+def set_imitation(model, weight: float, rows: int, start: int = 0) -> None:
+    """The model's actor imitates ``rows`` rows of its replay buffer from row ``start`` (the
+    oracle's transitions: kept at its start, or stored mid-run by the late rule) with ``weight``;
+    0 for either turns imitation off."""
     model.imitation_weight = float(weight)
     model.imitation_rows = int(rows)
+    model.imitation_start = int(start)
 
 
 def imitating_sac():
@@ -78,6 +81,7 @@ def imitating_sac():
     class ImitatingSAC(sbx.SAC):
         imitation_weight: float = 0.0
         imitation_rows: int = 0
+        imitation_start: int = 0
 
         def train(self, gradient_steps: int, batch_size: int) -> None:
             if self.imitation_weight <= 0 or self.imitation_rows <= 0 or self.policy_delay != 1:
@@ -85,8 +89,9 @@ def imitating_sac():
             buf = self.replay_buffer
             n = batch_size * gradient_steps
             data = buf.sample(n, env=self._vec_normalize_env)
-            # The demonstrations' batch: rows of the buffer's kept start, any environment column.
-            rows = np.random.randint(0, min(self.imitation_rows, buf.buffer_size), size=n)
+            # The demonstrations' batch: the rows they fill, any environment column.
+            lo = min(self.imitation_start, buf.buffer_size - 1)
+            rows = np.random.randint(lo, min(lo + self.imitation_rows, buf.buffer_size), size=n)
             cols = np.random.randint(0, buf.n_envs, size=n)
             bound = 1.0 - ACTION_MARGIN
             demo = (buf.observations[rows, cols].astype(np.float32),

@@ -146,7 +146,7 @@ class Session:
         # where there are none.
         self.late = (LateDemonstrations(cfg.late_demonstrations, get_preset(cfg.preset).late_after,
                                         cfg.stall_demonstrations, cfg.plateau or get_preset(cfg.preset).plateau,
-                                        cfg.sparse_gamma)
+                                        cfg.sparse_gamma, cfg.sparse_imitation, cfg.imitation_states)
                      if cfg.late_demonstrations > 0 or cfg.stall_demonstrations > 0 else None)
         self.stop = stop if stop is not None else Interrupts()
         self.kept_rows = 0  # the demonstrations' rows of the replay buffer, never overwritten
@@ -315,6 +315,9 @@ class Session:
                 self.set_discount(model, self.late.gamma)
         self.kept_rows = int(state.get("demonstration_rows") or 0)
         set_imitation(model, self.cfg.imitation, self.kept_rows)
+        late_paths = None if self.late is None else self.late.imitated
+        if late_paths is not None:  # the paths the late rule found, where it stored them
+            set_imitation(model, late_paths["imitation"], late_paths["rows"], late_paths.get("start_row", 0))
         if self.curriculum is not None and state.get("failed_starts") is not None:
             self.curriculum.restore(state["failed_starts"])
         self.seconds_before = float(state["seconds"])
