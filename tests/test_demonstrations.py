@@ -474,7 +474,8 @@ def test_a_run_on_sbx_that_finds_nothing_imitates_the_oracles_paths_from_then_on
     assert code == 0 and "the actor imitates these paths from now on (weight 1)" in err, err
     m = RunDir(out).read_manifest()
     late = m["late_demonstrations"][0]
-    assert m["config"]["sparse_imitation"] == 1.0
+    assert m["config"]["sparse_imitation"] == 1.0 and m["config"]["sparse_gamma"] is None
+    assert late.get("gamma") is None and "discount's horizon grows" not in err  # shown the detour, it keeps its discount
     assert late["why"] == "nothing found" and late["imitation"] == 1.0 and late["states"] == 12 and late["added"] >= 10
     with open(out / "checkpoint" / "replay.pkl", "rb") as f:
         rb = pickle.load(f)

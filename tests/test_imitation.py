@@ -95,9 +95,11 @@ def test_the_late_rule_imitates_where_a_run_could_and_leaves_the_key_alone():
     assert cfg.sparse_imitation == DEFAULT.sparse_imitation > 0 and cfg.imitation_states == DEFAULT.imitation_states
     assert cfg.imitation_seconds == DEFAULT.imitation_seconds
     assert "sparse_imitation" not in cfg.key and "imitation_states" not in cfg.key  # acts only once it fired
+    assert cfg.sparse_gamma is None  # imitating the paths, the run keeps its discount
     for other in (dict(algo="td3"), dict(engine="sb3"), dict(imitation=1.0), dict(demonstrations=0),
                   dict(preset="paper")):
         assert resolve_config(prog, steps=2_000_000, **other).sparse_imitation == 0.0, other
+    assert resolve_config(prog, steps=2_000_000, algo="td3").sparse_gamma is not None  # the 8 sequences' rule
 
 
 def test_a_run_with_imitation_keeps_it_across_a_resume_and_says_its_demonstrations(tiny, tmp_path, capsys):
