@@ -256,6 +256,9 @@ def test_the_rule_fires_on_a_stall_once_validation_has_stopped_improving():
     assert rule.due(rows(0.0, 0.0, 0.0), 1000, 10_000, 1.0, None) == NOTHING
     assert rule.due(rows(0.2, 0.5, 0.6), 300, 10_000, 1.0, None) is None   # still improving
     assert rule.due(rows(0.2, 0.5, 0.6, 0.6, 0.6, 0.6), 600, 10_000, 1.0, None) == STALLED  # flat for half its steps
+    # ... but not in the run's last validation interval: 180 s of search that nothing would learn from
+    assert rule.due(rows(0.2, 0.5, 0.6, 0.6, 0.6, 0.6), 600, 650, 1.0, None, interval=100) is None
+    assert rule.due(rows(0.0, 0.0, 0.0), 1000, 1050, 1.0, None, interval=100) is None
     assert LateDemonstrations(8, 0.1).due(rows(0.2, 0.5, 0.6, 0.6, 0.6, 0.6), 600, 10_000, 1.0, None) is None
     assert rule.due(rows(0.2, 1.0, 1.0, 1.0, 1.0, 1.0), 600, 10_000, 1.0, None) is None  # nothing left to gain
     assert not rule.may_fire(rows(0.2, 1.0, 1.0, 1.0, 1.0, 1.0))  # ... so the run may end on its plateau

@@ -122,13 +122,14 @@ class LateDemonstrations:
         return self.waits_for_stall and not _complete(self.recent(curves) or curves)
 
     def due(self, curves: Sequence[Mapping[str, Any]], steps: int, total_steps: int, seconds: float,
-            time_limit: Optional[float]) -> Optional[str]:
+            time_limit: Optional[float], interval: int = 0) -> Optional[str]:
         """Why the rule fires after the validations ``curves`` (the latest last), at ``steps`` of
         ``total_steps`` and ``seconds`` of ``time_limit`` (None: a run bounded by steps):
-        :data:`NOTHING` or :data:`STALLED`; None when it does not."""
+        :data:`NOTHING` or :data:`STALLED`; None when it does not, also when fewer than
+        ``interval`` steps (a validation interval) are left: the run could not learn from them."""
         from .validation import plateau_reached
 
-        if not curves:
+        if not curves or total_steps - steps < interval:
             return None
         if not _succeeded(curves) and not self.fired(NOTHING):
             spent = steps / max(1, total_steps)

@@ -274,7 +274,8 @@ class Session:
         if self.progress is not None:
             self.progress.validated(row)
         why = (None if self.late is None or self.time_up or steps >= self.cfg.steps  # not after the last
-               else self.late.due(self.curves, int(steps), self.cfg.steps, self.seconds, self.cfg.time_limit))
+               else self.late.due(self.curves, int(steps), self.cfg.steps, self.seconds, self.cfg.time_limit,
+                                  interval=self.cfg.validate_every))
         if why is not None:
             add_late(self, model, int(steps), why)
         return row
