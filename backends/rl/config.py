@@ -234,7 +234,8 @@ def resolve_config(prog, task: Optional[str] = None, *, algo: Optional[str] = No
     # the oracle's paths is shown it, and flies it faster at the shorter horizon (measured: puck
     # 99.1 / 65.4 / 7.9% against 77.6 / 54.6 / 7.4% with both).
     sparse_gamma = None
-    if late and not sparse_imitation and p.sparse_horizon is not None and "gamma" not in block and "gamma" not in (settings or {}):
+    chosen = "gamma" in block or "gamma" in (settings or {})
+    if late and not sparse_imitation and p.sparse_horizon is not None and not chosen:
         longer = discount(t.deadline, p.sparse_horizon)
         sparse_gamma = longer if longer > float(hyper.get("gamma", 0.99)) else None
     if algo in OFF_POLICY:

@@ -273,7 +273,8 @@ class Session:
         self.schedule.done(int(steps), self.seconds, time.perf_counter() - t0)
         if self.progress is not None:
             self.progress.validated(row)
-        why = (None if self.late is None or self.time_up or steps >= self.cfg.steps  # not after the last
+        # Not in the last validation interval (nor after the last step): nothing would learn from it.
+        why = (None if self.late is None or self.time_up
                else self.late.due(self.curves, int(steps), self.cfg.steps, self.seconds, self.cfg.time_limit,
                                   interval=self.cfg.validate_every))
         if why is not None:
