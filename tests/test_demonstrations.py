@@ -434,6 +434,35 @@ def test_the_demonstrations_stay_in_the_buffer_once_it_wraps_round():
     assert big.pos == 0
 
 
+def test_rows_stored_mid_run_stay_in_the_buffer_once_it_wraps_round():
+    """The late rule stores the paths the actor imitates mid-run, after the learner's first rows:
+    the ring skips them too (before, it overwrote them a round later and the actor imitated
+    whatever took their place), and a range that ends at the buffer's end sends it to row 0."""
+    from gymnasium import spaces
+    from stable_baselines3.common.buffers import ReplayBuffer
+
+    from asap_dsl.backends.rl.demonstrations import keep
+
+    box = spaces.Box(-1, 1, (1,), np.float32)
+
+    def fill(rb, start: int, rows: int, learner: int, demos: int) -> None:
+        for v in range(learner):
+            if v == start:  # the firing: its rows follow the learner's first ones
+                for d in range(rows):
+                    rb.add(np.array([[demos + d]]), np.array([[0.0]]), np.array([[0.0]]), np.array([0.0]),
+                           np.array([False]), [{}])
+            keep(rb, rows, start)
+            rb.add(np.array([[v]]), np.array([[0.0]]), np.array([[0.0]]), np.array([0.0]), np.array([False]), [{}])
+
+    rb = ReplayBuffer(10, box, box, n_envs=1)
+    fill(rb, 4, 3, 40, 100)
+    assert list(rb.observations[4:7, 0, 0]) == [100, 101, 102]
+    assert set(rb.observations[[0, 1, 2, 3, 7, 8, 9], 0, 0]) == set(range(33, 40))  # the learner's latest seven
+    tail = ReplayBuffer(10, box, box, n_envs=1)
+    fill(tail, 7, 3, 40, 100)
+    assert list(tail.observations[7:, 0, 0]) == [100, 101, 102] and set(tail.observations[:7, 0, 0]) == set(range(33, 40))
+
+
 def test_make_room_grows_a_buffer_that_has_not_wrapped_and_leaves_one_that_has():
     """The late rule's paths for the actor to imitate come mid-run: the buffer grows by their rows
     (what it held stays where it was), unless it has wrapped round already."""
@@ -466,7 +495,7 @@ def test_a_run_on_sbx_that_finds_nothing_imitates_the_oracles_paths_from_then_on
 
     monkeypatch.setattr(validation, "BUDGET", 1e9)
     monkeypatch.setitem(presets.PRESETS, "default",
-                        replace(presets.DEFAULT, imitation_states=12, imitation_seconds=120.0))
+                        replace(presets.DEFAULT, imitation_states=12, imitation_seconds=120.0, plateau=None))
     far = RAIL.replace("init [-1.5, 1.5]", "init [-1.5, -0.5]").replace(
         "tolerances 20, 10, 5", "tolerances 20, 10, 5\n  train { learning_starts = 10000 }")
     spec = tmp_path / "far.asap"
@@ -489,5 +518,11 @@ def test_a_run_on_sbx_that_finds_nothing_imitates_the_oracles_paths_from_then_on
     assert not rb.full and rb.pos == firings + m["steps_done"] // 2 - ("plateau_step" in m)
     stored = rb.actions[late["start_row"]:late["start_row"] + late["rows"]]
     assert np.abs(stored).max() <= 1.0 and np.abs(stored).max() > 0  # the oracle's actions, in the policy's units
+    from asap_dsl.backends.rl import session as session_module
+
+    kept = set()
+    real_keep = session_module.keep
+    monkeypatch.setattr(session_module, "keep", lambda rb, rows, start=0: (kept.add((start, rows)), real_keep(rb, rows, start)))
     code, _, err = asapc(capsys, "train", spec, "--out", out, "--resume", "--steps", STEPS + 60, "--no-eval")
     assert code == 0 and "no validation has succeeded after" not in err, err
+    assert (late["start_row"], late["rows"]) in kept  # resumed, the ring still skips the imitated rows

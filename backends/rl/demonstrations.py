@@ -206,14 +206,18 @@ def store(replay_buffer, tr: Transitions) -> int:
     return rows * n
 
 
-def keep(replay_buffer, rows: int) -> None:
-    """Keep the first ``rows`` rows of a ring buffer (the demonstrations) for the whole run: once it
-    has wrapped round, its next row is the first after them, not theirs. Called before each store.
-    A replay buffer fills in a few minutes at a few thousand steps per second; without this, the
-    oracle's witnesses would be the first transitions it forgets. Where they would fill half of it
-    or more, nothing is kept (the learner's own transitions need the room)."""
-    if 0 < rows < replay_buffer.buffer_size // 2 and replay_buffer.full and replay_buffer.pos < rows:
-        replay_buffer.pos = rows
+def keep(replay_buffer, rows: int, start: int = 0) -> None:
+    """Keep ``rows`` rows of a ring buffer from row ``start`` (the demonstrations: at its start, or
+    where the late rule stored them mid-run) for the whole run: once it has wrapped round, its next
+    row is the first after them, not theirs. Called before each store. A replay buffer fills in a
+    few minutes at a few thousand steps per second; without this, the oracle's witnesses would be
+    the first transitions it forgets, and an actor imitating those rows would imitate whatever
+    overwrote them (the pendulum's and the puck's validation fell by 30–60 points at the step the
+    ring reached the late rule's rows). Where they would fill half of it or more, nothing is kept
+    (the learner's own transitions need the room)."""
+    if (0 < rows < replay_buffer.buffer_size // 2 and replay_buffer.full
+            and start <= replay_buffer.pos < start + rows):
+        replay_buffer.pos = (start + rows) % replay_buffer.buffer_size
 
 
 def make_room(replay_buffer, transitions: int) -> None:

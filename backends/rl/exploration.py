@@ -184,12 +184,14 @@ def add_late(session, model, steps: int, why: str = NOTHING) -> Optional[dict]:
                   + ("" if budget is None else f", for at most {budget:.0f} s") + " ...")
     # The oracle in one process: forking one that runs a learner (JAX's or torch's threads) is not
     # safe. The planner's workers are spawned, and so are the oracle's once JAX is loaded (the
-    # imitation's search: sbx): 1,069 pendulum states in 745 s on the 2 cores.
+    # imitation's search: sbx). It keeps the oracle's second initial guess per horizon, which
+    # `--imitation`'s search drops: along a long tour of warm starts, the pendulum's paths without it
+    # degraded to 42% within 65 steps on one seed's states (72% solved afresh); with it 520 states in
+    # 730 s, 71% within 65, and the run gained 10 / 17 / 8 points (docs/training.md).
     workers = (None if who == "planner" else available_cores() if imitated and "jax" in sys.modules else 1)
     try:
         witnesses = solve(session.prog, cfg.task, states, cfg.seed, workers=workers, state_seconds=per_state,
-                          budget_seconds=budget, check_stop=check_stop,
-                          **({"restarts": 0} if imitated else {}))
+                          budget_seconds=budget, check_stop=check_stop)
     except _Stopped:
         return None
     if stalled:  # as demonstrations from the start: the long manoeuvres, weighted

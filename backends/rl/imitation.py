@@ -29,8 +29,9 @@ __all__ = ["ACTION_MARGIN", "IMITATION_STATE_SECONDS", "imitating_sac", "set_imi
 #: manoeuvres the learner misses, are the ones a short cap drops (attitude: 6% timed out at 5 s,
 #: 2% were not solved at 30 s, for 16% more time).
 IMITATION_STATE_SECONDS = 15.0
-# Its search tries no second initial guess at a horizon the first found infeasible: on 80 attitude
-# states 0.73 s a state against 1.05, one minimum a step longer (the session passes restarts=0).
+# `--imitation`'s search tries no second initial guess at a horizon the first found infeasible: on
+# 80 attitude states 0.73 s a state against 1.05, one minimum a step longer (the session passes
+# restarts=0). The late rule's search keeps it (:mod:`.exploration`: the pendulum's paths need it).
 
 #: The oracle's actions are pulled inside the action box by this share: the policy's tanh reaches
 #: the bounds only at infinity, and a bang-bang optimum sits on them.

@@ -90,8 +90,8 @@ def _callbacks():
             n = self.num_timesteps
             if s.progress is not None:
                 s.progress.advance(n)
-            if s.kept_rows:  # before the step's transitions are stored (SB3 stores after on_step)
-                keep(self.model.replay_buffer, s.kept_rows)
+            for start, rows in s.kept:  # before the step's transitions are stored (SB3 stores after on_step)
+                keep(self.model.replay_buffer, rows, start)
             if s.schedule.due(n, s.seconds):
                 s.validate(self.model, n, self.logger)
                 if s.plateaued(n):
@@ -158,6 +158,16 @@ class Session:
     @property
     def seconds(self) -> float:
         return self.seconds_before + (time.perf_counter() - self.started)
+
+    @property
+    def kept(self) -> list[tuple[int, int]]:
+        """``(start, rows)`` of the replay buffer never overwritten: the demonstrations stored at
+        its start, and the paths the late rule stored mid-run for the actor to imitate."""
+        out = [(0, self.kept_rows)] if self.kept_rows else []
+        late = None if self.late is None else self.late.imitated
+        if late is not None and late.get("rows"):
+            out.append((int(late.get("start_row", 0)), int(late["rows"])))
+        return out
 
     def learner_env(self, raw):
         """A raw vector env of the task as the learner sees it (scaled, the deadline's handling),
