@@ -419,7 +419,7 @@ def test_the_demonstrations_stay_in_the_buffer_once_it_wraps_round():
     rb = ReplayBuffer(10, box, box, n_envs=1)
 
     def add(v: float) -> None:
-        keep(rb, 3)
+        keep(rb, [(0, 3)])
         rb.add(np.array([[v]]), np.array([[v]]), np.array([[0.0]]), np.array([0.0]), np.array([False]), [{}])
 
     for v in (100, 101, 102):  # the demonstrations
@@ -430,7 +430,7 @@ def test_the_demonstrations_stay_in_the_buffer_once_it_wraps_round():
     assert set(rb.observations[3:, 0, 0]) == set(range(18, 25))  # the latest seven of the learner's
     big = ReplayBuffer(4, box, box, n_envs=1)
     big.full, big.pos = True, 0
-    keep(big, 2)  # half of the buffer: not kept
+    keep(big, [(0, 2)])  # half of the buffer: not kept
     assert big.pos == 0
 
 
@@ -451,7 +451,7 @@ def test_rows_stored_mid_run_stay_in_the_buffer_once_it_wraps_round():
                 for d in range(rows):
                     rb.add(np.array([[demos + d]]), np.array([[0.0]]), np.array([[0.0]]), np.array([0.0]),
                            np.array([False]), [{}])
-            keep(rb, rows, start)
+            keep(rb, [(start, rows)])
             rb.add(np.array([[v]]), np.array([[0.0]]), np.array([[0.0]]), np.array([0.0]), np.array([False]), [{}])
 
     rb = ReplayBuffer(10, box, box, n_envs=1)
@@ -461,6 +461,10 @@ def test_rows_stored_mid_run_stay_in_the_buffer_once_it_wraps_round():
     tail = ReplayBuffer(10, box, box, n_envs=1)
     fill(tail, 7, 3, 40, 100)
     assert list(tail.observations[7:, 0, 0]) == [100, 101, 102] and set(tail.observations[:7, 0, 0]) == set(range(33, 40))
+    both = ReplayBuffer(10, box, box, n_envs=1)  # the start's rows and a range that ends at the buffer's end
+    both.full, both.pos = True, 8
+    keep(both, [(0, 2), (7, 3)])
+    assert both.pos == 2
 
 
 def test_make_room_grows_a_buffer_that_has_not_wrapped_and_leaves_one_that_has():
@@ -522,7 +526,7 @@ def test_a_run_on_sbx_that_finds_nothing_imitates_the_oracles_paths_from_then_on
 
     kept = set()
     real_keep = session_module.keep
-    monkeypatch.setattr(session_module, "keep", lambda rb, rows, start=0: (kept.add((start, rows)), real_keep(rb, rows, start)))
+    monkeypatch.setattr(session_module, "keep", lambda rb, ranges: (kept.update(ranges), real_keep(rb, ranges)))
     code, _, err = asapc(capsys, "train", spec, "--out", out, "--resume", "--steps", STEPS + 60, "--no-eval")
     assert code == 0 and "no validation has succeeded after" not in err, err
     assert (late["start_row"], late["rows"]) in kept  # resumed, the ring still skips the imitated rows

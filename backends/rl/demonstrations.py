@@ -23,7 +23,7 @@ import functools
 import sys
 import time
 from dataclasses import asdict, dataclass, replace
-from typing import Any, Callable, Optional
+from typing import Any, Callable, Optional, Sequence
 
 import numpy as np
 
@@ -206,18 +206,23 @@ def store(replay_buffer, tr: Transitions) -> int:
     return rows * n
 
 
-def keep(replay_buffer, rows: int, start: int = 0) -> None:
-    """Keep ``rows`` rows of a ring buffer from row ``start`` (the demonstrations: at its start, or
-    where the late rule stored them mid-run) for the whole run: once it has wrapped round, its next
-    row is the first after them, not theirs. Called before each store. A replay buffer fills in a
-    few minutes at a few thousand steps per second; without this, the oracle's witnesses would be
-    the first transitions it forgets, and an actor imitating those rows would imitate whatever
+def keep(replay_buffer, ranges: Sequence[tuple[int, int]]) -> None:
+    """Keep the ring buffer's ``(start, rows)`` ranges (the demonstrations: at its start, or where
+    the late rule stored them mid-run) for the whole run: once it has wrapped round, its next row
+    is the first after them, not theirs. Called before each store. A replay buffer fills in a few
+    minutes at a few thousand steps per second; without this, the oracle's witnesses would be the
+    first transitions it forgets, and an actor imitating those rows would imitate whatever
     overwrote them (the pendulum's and the puck's validation fell by 30–60 points at the step the
-    ring reached the late rule's rows). Where they would fill half of it or more, nothing is kept
+    ring reached the late rule's rows). A range that would fill half of it or more is not kept
     (the learner's own transitions need the room)."""
-    if (0 < rows < replay_buffer.buffer_size // 2 and replay_buffer.full
-            and start <= replay_buffer.pos < start + rows):
-        replay_buffer.pos = (start + rows) % replay_buffer.buffer_size
+    if not replay_buffer.full:
+        return
+    kept = [(s, r) for s, r in ranges if 0 < r < replay_buffer.buffer_size // 2]
+    for _ in kept:  # leaving one range may land in the next (one that ends at the buffer's end: at row 0)
+        inside = next(((s, r) for s, r in kept if s <= replay_buffer.pos < s + r), None)
+        if inside is None:
+            return
+        replay_buffer.pos = (inside[0] + inside[1]) % replay_buffer.buffer_size
 
 
 def make_room(replay_buffer, transitions: int) -> None:

@@ -90,8 +90,9 @@ def _callbacks():
             n = self.num_timesteps
             if s.progress is not None:
                 s.progress.advance(n)
-            for start, rows in s.kept:  # before the step's transitions are stored (SB3 stores after on_step)
-                keep(self.model.replay_buffer, rows, start)
+            kept = s.kept
+            if kept:  # before the step's transitions are stored (SB3 stores after on_step)
+                keep(self.model.replay_buffer, kept)
             if s.schedule.due(n, s.seconds):
                 s.validate(self.model, n, self.logger)
                 if s.plateaued(n):
