@@ -232,7 +232,7 @@ DEFAULT = Preset(
     # On once the late rule found nothing (measured, docs/training.md "Imitation once nothing is
     # found"): the pendulum, seeds 0-2, 88.8 / 57.1 / 33.2% within 80 / 65 / 55 against seed 0's
     # 64.0 / 24.5 / 3.5% with the rule's 8 sequences alone (ceiling 100 / 68.5 / 41.0%); the puck,
-    # seeds 0-1, 98.6 / 66.1 / 10.7% within 80 / 62 / 59 against 99.5 / 0 / 0% (ceiling 100 / 75.0 / 23.5%).
+    # seeds 0-2, 98.9 / 65.5 / 10.8% within 80 / 62 / 59 against 99.5 / 0 / 0% (ceiling 100 / 75.0 / 23.5%).
     sparse_imitation=1.0,
     imitation_states=2500,
     imitation_seconds=720.0,
