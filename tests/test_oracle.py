@@ -217,6 +217,42 @@ def test_comparisons_and_past_operators_are_solved_and_verified():
     assert [r.steps for r in once.results] == [r.steps for r in plain.results]
 
 
+
+def _first_passing_by_prefixes(o, tr):
+    """The definition: the smallest k >= 1 whose prefix tr[:k + 1] passes, none past a non-finite state."""
+    for k in range(1, tr.shape[0]):
+        if not np.all(np.isfinite(tr[k])):
+            return None
+        if o.trajectory_ok(tr[: k + 1]):
+            return k
+    return None
+
+
+@pytest.mark.filterwarnings("ignore::RuntimeWarning")  # random actions overflow attitude's finite escape
+@pytest.mark.parametrize("source, task", [(SPECS / "attitude.asap", "reach_avoid"), (None, "settle")])
+def test_the_searchs_prefix_check_is_the_replays(source, task):
+    """The search checks each solution's prefixes in one pass over a CasADi rollout; it must
+    agree with the replay through the simulator's step and the prefix-by-prefix check (an
+    ``avoid``, the state space and a dwell over past steps included)."""
+    prog = asap_dsl.load(source) if source is not None else asap_dsl.loads(DWELL)
+    o = O.Oracle(prog, task, restarts=0)
+    rng = np.random.default_rng(3)
+    low, high = prog.system.init_low, prog.system.init_high
+    found = 0
+    for _ in range(60):
+        x0 = rng.uniform(low, high) * rng.choice([0.1, 0.5, 1.0])
+        U = rng.uniform(o.ulow, o.uhigh, size=(int(rng.integers(1, 25)), o.m)) * rng.choice([0.0, 0.3, 1.0])
+        tr, _ = o.replay(x0, U)
+        assert np.allclose(o._rollout(x0, U), tr, rtol=1e-9, atol=1e-9, equal_nan=True)
+        expected = _first_passing_by_prefixes(o, tr)
+        assert o.passing_prefix(tr) == o.first_passing_prefix(x0, U) == expected
+        found += expected is not None
+    assert 0 < found < 60  # both answers were exercised
+    tr, _ = o.replay(low, np.zeros((4, o.m)))
+    tr[2] = np.nan
+    assert o.passing_prefix(tr) == _first_passing_by_prefixes(o, tr)
+
+
 # A discrete double integrator that must *stay* home for three steps: historically[0, 2] in home.
 DWELL = """
 system Dwell {

@@ -21,8 +21,9 @@ action sequence fulfils the task, verified by replay.
   state's solution at N-1 shifted, constant-action rollouts (centre of the action box, then
   bang-bang on the first action), the straight line from x0 to the goal's centre — and the best
   is kept as the next warm start. Deterministic; the extra solves are counted (``restarts``).
-* Every solution, feasible or not, is replayed and its shortest prefix that fulfils the task is
-  taken (a solution at N with positive slack may pass through the goal earlier).
+* Every solution, feasible or not, is rolled out (the CasADi step: the same discretisation in one
+  compiled call) and its shortest prefix that fulfils the task is taken (a solution at N with
+  positive slack may pass through the goal earlier).
 * Labels: ``exact`` when the feasibility problem of every N is convex — linear dynamics (an
   ``ode`` with ``integrator exact`` or any integrator of a linear ODE, or a linear ``map``), goal
   literals that are balls/boxes over linear coordinates, no ``avoid``: then IPOPT's optimum is
@@ -95,7 +96,8 @@ class Oracle:
         self.goals = Goals(t.model, self.regions)  # unsupported parts fail here, up front
         self.n, self.m = sys_.n_state, sys_.n_action
         self.step_np = numpy_step(sys_)
-        step_ca = casadi_step(sys_)
+        self._step_ca = step_ca = casadi_step(sys_)
+        self._rollouts: dict[int, object] = {}  # N -> the step's N-fold rollout (CasADi mapaccum)
         if not (time_limit > 0 and math.isfinite(time_limit)):
             raise ValueError(f"the time limit per state must be a positive number of seconds; got {time_limit}")
         self.time_limit = float(time_limit)
@@ -156,12 +158,46 @@ class Oracle:
     def first_passing_prefix(self, x0: np.ndarray, actions: np.ndarray) -> Optional[int]:
         """The smallest k >= 1 such that the first k actions fulfil the task (replayed), or None."""
         tr, _ = self.replay(x0, actions)
-        for k in range(1, tr.shape[0]):
-            if not np.all(np.isfinite(tr[k])):
-                return None
-            if self.trajectory_ok(tr[: k + 1]):
-                return k
-        return None
+        return self.passing_prefix(tr)
+
+    def passing_prefix(self, tr: np.ndarray) -> Optional[int]:
+        """The smallest k >= 1 such that the trajectory's first k steps ``tr[:k + 1]`` fulfil the
+        task (:meth:`trajectory_ok`), or None; none at or after a non-finite state.
+
+        One pass over the trajectory: ``asap``'s operators look only backwards, so its value at
+        step k on the whole trajectory is its value on the prefix (the oracle's goals are built
+        from such formulas alone, :mod:`.goals`)."""
+        N = tr.shape[0] - 1
+        if N < 1:
+            return None
+        finite = np.all(np.isfinite(tr), axis=1)
+        bad = int(np.argmin(finite)) if not finite.all() else N + 1  # the first non-finite step
+        if bad <= 1:
+            return None
+        tr = tr[:bad]
+        later = tr[1:]
+        inside = np.logical_and.accumulate(np.all((later >= self.low) & (later <= self.high), axis=1))
+        t = self.task.model
+        ok = inside & offline.satisfied(t.asap, tr[None])[0, 1:]
+        if t.avoid is not None:
+            ok &= ~np.logical_or.accumulate(offline.satisfied(t.avoid, tr[None])[0, 1:])
+        hits = np.flatnonzero(ok)
+        return int(hits[0]) + 1 if hits.size else None
+
+    def _rollout(self, x0: np.ndarray, actions: np.ndarray) -> np.ndarray:
+        """``actions`` rolled out from ``x0`` with the CasADi step: the trajectory ``[N+1, n]``.
+
+        The same discretisation as :meth:`replay` in one compiled call (the numpy step costs
+        milliseconds a state, and the search checks every solution's prefixes: a third of its
+        time on attitude); the answer is verified by :meth:`replay` all the same."""
+        U = np.clip(np.asarray(actions, float).reshape(-1, self.m), self.ulow, self.uhigh)
+        N = U.shape[0]
+        roll = self._rollouts.get(N)
+        if roll is None:
+            roll = self._rollouts[N] = self._step_ca.mapaccum(N)
+        with np.errstate(all="ignore"):
+            X = np.asarray(roll(np.asarray(x0, float), U.T)).reshape(self.n, N).T if N else np.zeros((0, self.n))
+        return np.vstack([np.asarray(x0, float)[None, :], X])
 
     # ------------------------------------------------------------------ search
     def _try(self, N: int, x0: np.ndarray, own: dict[int, np.ndarray]):
@@ -185,7 +221,7 @@ class Oracle:
                 if obj < best_obj:
                     best_w, best_obj = w, obj
                 U = nlp.actions(N, w)
-                p = self.first_passing_prefix(x0, U)
+                p = self.passing_prefix(self._rollout(x0, U))
                 if obj <= FEASIBLE_TOL or p is not None:
                     # feasible (the replay in solve() judges it), or a prefix of the replay
                     # already fulfils the task although the slack is positive
