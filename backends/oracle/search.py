@@ -223,7 +223,7 @@ class Oracle:
                 U = nlp.actions(N, w)
                 p = self.passing_prefix(self._rollout(x0, U))
                 if obj <= FEASIBLE_TOL or p is not None:
-                    # feasible (the replay in solve() judges it), or a prefix of the replay
+                    # feasible (the replay in solve() judges it), or a prefix of the rollout
                     # already fulfils the task although the slack is positive
                     own[N] = w
                     nlp.remember(N, j, w)
