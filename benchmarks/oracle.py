@@ -2,7 +2,7 @@
 200 attitude states; prints the time and the ceiling per tolerance of each task. With both tasks
 (the default) it then makes their minima consistent (``tighten``: a state's ``reach`` minimum is at
 most its ``reach_avoid`` minimum, every adopted sequence verified by replay) and prints the
-tightened ceilings.
+tightened ceilings, and the search's prefix check against the numpy replay (a ratio, in the run).
 
     /work/venv/bin/python benchmarks/oracle.py [--workers 2] [--dc 1000] [--bicycle 200] [--attitude 200]
         [--task both|reach|reach_avoid] [--restarts K] [--no-interval-bound]
@@ -17,6 +17,7 @@ import time
 from pathlib import Path
 
 import asap_dsl
+from asap_dsl.backends.oracle.search import Oracle
 from asap_dsl.backends.oracle.solver import run, tighten
 
 SPECS = Path(__file__).resolve().parents[1] / "specs"
@@ -26,6 +27,25 @@ def _ceil(rep) -> str:
     return ", ".join(f"{row['tolerance']}: {100 * row['rate']:.1f}% "
                      f"[{100 * row['ci95'][0]:.1f}, {100 * row['ci95'][1]:.1f}]" for row in
                      (rep.ceiling(t) for t in sorted(rep.tolerances)))
+
+
+def _prefix_check_ratio(name: str, prog, rep) -> None:
+    """The search checks every IPOPT solution's prefixes: time that check on the report's action
+    sequences as the search does it (CasADi rollout, one pass) against the simulator's numpy
+    replay checked the same way, in this run; both must give the same prefixes."""
+    oracle = Oracle(prog, rep.task, restarts=0)  # no NLP is built
+    cases = [(r.x0, r.actions) for r in rep.results if r.actions is not None and len(r.actions)]
+    if not cases:
+        return
+    t0 = time.perf_counter()
+    fast = [oracle.passing_prefix(oracle._rollout(x0, U)) for x0, U in cases]
+    t_fast = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    slow = [oracle.first_passing_prefix(x0, U) for x0, U in cases]
+    t_slow = time.perf_counter() - t0
+    print(f"  prefix check, {len(cases)} sequences: rollout {1000 * t_fast / len(cases):.2f} ms, numpy replay "
+          f"{1000 * t_slow / len(cases):.2f} ms a sequence: {t_slow / t_fast:.1f}x; "
+          f"{'the same prefixes' if fast == slow else 'PREFIXES DIFFER'}", flush=True)
 
 
 def main() -> int:
@@ -64,6 +84,7 @@ def main() -> int:
             if name == "dc_motor" and task == "reach":
                 ok = dt < 60.0
                 print(f"  bar: 1000 DC motor states under 60 s -> {'met' if ok else 'MISSED'} ({dt:.1f} s)")
+        _prefix_check_ratio(name, prog, reports[-1])
         if len(reports) > 1:
             t0 = time.perf_counter()
             improved = tighten(prog, reports)

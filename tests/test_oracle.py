@@ -17,6 +17,7 @@ import asap_dsl
 from asap_dsl.backends import oracle as O
 from asap_dsl.cli.oracle import add_oracle_arguments
 from asap_dsl.dynamics import numpy_step, zero_order_hold
+from asap_dsl.stl import offline
 
 SPECS = Path(__file__).resolve().parents[1] / "specs"
 
@@ -217,13 +218,21 @@ def test_comparisons_and_past_operators_are_solved_and_verified():
     assert [r.steps for r in once.results] == [r.steps for r in plain.results]
 
 
+def _passes(o, tr):
+    """The definition, prefix by prefix: finite, inside the state space at steps 1..N, ``asap`` at
+    N (evaluated on this prefix alone), ``avoid`` at none of steps 1..N."""
+    t, N = o.task.model, tr.shape[0] - 1
+    return bool(np.all(np.isfinite(tr)) and np.all(tr[1:] >= o.low) and np.all(tr[1:] <= o.high)
+                and offline.satisfied(t.asap, tr[None])[0, N]
+                and (t.avoid is None or N == 0 or not np.any(offline.satisfied(t.avoid, tr[None])[0, 1:])))
+
 
 def _first_passing_by_prefixes(o, tr):
-    """The definition: the smallest k >= 1 whose prefix tr[:k + 1] passes, none past a non-finite state."""
+    """The smallest k >= 1 whose prefix tr[:k + 1] passes (:func:`_passes`), none past a non-finite state."""
     for k in range(1, tr.shape[0]):
         if not np.all(np.isfinite(tr[k])):
             return None
-        if o.trajectory_ok(tr[: k + 1]):
+        if _passes(o, tr[: k + 1]):
             return k
     return None
 
@@ -238,7 +247,7 @@ def test_the_searchs_prefix_check_is_the_replays(source, task):
     o = O.Oracle(prog, task, restarts=0)
     rng = np.random.default_rng(3)
     low, high = prog.system.init_low, prog.system.init_high
-    found = 0
+    found, late = 0, None
     for _ in range(60):
         x0 = rng.uniform(low, high) * rng.choice([0.1, 0.5, 1.0])
         U = rng.uniform(o.ulow, o.uhigh, size=(int(rng.integers(1, 25)), o.m)) * rng.choice([0.0, 0.3, 1.0])
@@ -246,8 +255,19 @@ def test_the_searchs_prefix_check_is_the_replays(source, task):
         assert np.allclose(o._rollout(x0, U), tr, rtol=1e-9, atol=1e-9, equal_nan=True)
         expected = _first_passing_by_prefixes(o, tr)
         assert o.passing_prefix(tr) == o.first_passing_prefix(x0, U) == expected
+        assert [o.trajectory_ok(tr[: k + 1]) for k in range(len(tr))] == [_passes(o, tr[: k + 1]) for k in range(len(tr))]
         found += expected is not None
+        if expected is not None and expected >= 2:
+            late = tr
     assert 0 < found < 60  # both answers were exercised
+    # leaving the state space (or touching `avoid`) on the way rules out every later step
+    out = late.copy()
+    out[1] = o.high + 1.0
+    assert _first_passing_by_prefixes(o, out) is None and o.passing_prefix(out) is None
+    if o.task.model.avoid is not None:  # attitude: the unsafe ball's centre, inside the goal
+        out = late.copy()
+        out[1] = prog.regions["unsafe"].centre
+        assert _first_passing_by_prefixes(o, out) is None and o.passing_prefix(out) is None
     tr, _ = o.replay(low, np.zeros((4, o.m)))
     tr[2] = np.nan
     assert o.passing_prefix(tr) == _first_passing_by_prefixes(o, tr)

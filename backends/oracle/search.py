@@ -139,21 +139,31 @@ class Oracle:
         tr = np.asarray(traj)
         return tr, self.trajectory_ok(tr)
 
+    def fulfilled(self, tr: np.ndarray) -> np.ndarray:
+        """Per step k of the trajectory ``[N+1, n]``, whether its first k steps ``tr[:k + 1]``
+        fulfil the task: finite up to k, inside the state space at steps 1..k, ``asap`` at k,
+        ``avoid`` at none of steps 1..k (``[N+1]`` booleans).
+
+        One pass: ``asap``'s operators look only backwards, so its value at step k on the whole
+        trajectory is its value on the prefix (the oracle's goals are built from such formulas
+        alone, :mod:`.goals`)."""
+        out = np.zeros(tr.shape[0], bool)
+        finite = np.all(np.isfinite(tr), axis=1)
+        good = tr.shape[0] if finite.all() else int(np.argmin(finite))  # steps before the first non-finite
+        if good == 0:
+            return out
+        tr = tr[:good]
+        ok = offline.satisfied(self.task.model.asap, tr[None])[0].astype(bool)
+        ok[1:] &= np.logical_and.accumulate(np.all((tr[1:] >= self.low) & (tr[1:] <= self.high), axis=1))
+        avoid = self.task.model.avoid
+        if avoid is not None:
+            ok[1:] &= ~np.logical_or.accumulate(offline.satisfied(avoid, tr[None])[0, 1:])
+        out[:good] = ok
+        return out
+
     def trajectory_ok(self, tr: np.ndarray) -> bool:
-        """Whether the trajectory ``[N+1, n]`` fulfils the task at its last step: finite, inside
-        the state space at steps 1..N, ``asap`` at N, ``avoid`` at none of steps 1..N."""
-        if not np.all(np.isfinite(tr)):
-            return False
-        N = tr.shape[0] - 1
-        later = tr[1:]
-        if np.any(later < self.low) or np.any(later > self.high):
-            return False
-        t = self.task.model
-        if not bool(offline.satisfied(t.asap, tr[None])[0, N]):
-            return False
-        if t.avoid is not None and N > 0 and bool(np.any(offline.satisfied(t.avoid, tr[None])[0, 1:])):
-            return False
-        return True
+        """Whether the trajectory ``[N+1, n]`` fulfils the task at its last step (:meth:`fulfilled`)."""
+        return bool(self.fulfilled(tr)[-1])
 
     def first_passing_prefix(self, x0: np.ndarray, actions: np.ndarray) -> Optional[int]:
         """The smallest k >= 1 such that the first k actions fulfil the task (replayed), or None."""
@@ -161,27 +171,9 @@ class Oracle:
         return self.passing_prefix(tr)
 
     def passing_prefix(self, tr: np.ndarray) -> Optional[int]:
-        """The smallest k >= 1 such that the trajectory's first k steps ``tr[:k + 1]`` fulfil the
-        task (:meth:`trajectory_ok`), or None; none at or after a non-finite state.
-
-        One pass over the trajectory: ``asap``'s operators look only backwards, so its value at
-        step k on the whole trajectory is its value on the prefix (the oracle's goals are built
-        from such formulas alone, :mod:`.goals`)."""
-        N = tr.shape[0] - 1
-        if N < 1:
-            return None
-        finite = np.all(np.isfinite(tr), axis=1)
-        bad = int(np.argmin(finite)) if not finite.all() else N + 1  # the first non-finite step
-        if bad <= 1:
-            return None
-        tr = tr[:bad]
-        later = tr[1:]
-        inside = np.logical_and.accumulate(np.all((later >= self.low) & (later <= self.high), axis=1))
-        t = self.task.model
-        ok = inside & offline.satisfied(t.asap, tr[None])[0, 1:]
-        if t.avoid is not None:
-            ok &= ~np.logical_or.accumulate(offline.satisfied(t.avoid, tr[None])[0, 1:])
-        hits = np.flatnonzero(ok)
+        """The smallest k >= 1 such that the trajectory's first k steps fulfil the task
+        (:meth:`fulfilled`), or None."""
+        hits = np.flatnonzero(self.fulfilled(tr)[1:])
         return int(hits[0]) + 1 if hits.size else None
 
     def _rollout(self, x0: np.ndarray, actions: np.ndarray) -> np.ndarray:
