@@ -355,3 +355,20 @@ def test_rl_zoo3_trains_a_benchmark_id_with_gym_packages(tmp_path):
                          env={**__import__("os").environ, "OMP_NUM_THREADS": "1"})
     assert out.returncode == 0, out.stderr[-2000:]
     assert list((tmp_path / "logs" / "sac").glob("asap-dc_motor-reach_avoid-v0_*/asap-dc_motor-reach_avoid-v0.zip"))
+
+
+def test_the_progress_says_whose_ceiling_it_shows_beside_validation():
+    """The ceiling beside a validation is the evaluation states' (the cached oracle's), not the
+    validation states': the progress says so once, and only when it shows one."""
+    import io
+    from types import SimpleNamespace
+
+    from asap_dsl.cli.train import ConsoleProgress
+
+    cfg = SimpleNamespace(task="go", algo="sac", reward="asap", preset="default", seed=0, steps=100, n_envs=2,
+                          engine="sbx")
+    shown, plain = io.StringIO(), io.StringIO()
+    ConsoleProgress(shown).start(cfg, 0, {30: 0.99})
+    ConsoleProgress(plain).start(cfg, 0, None)
+    assert "the oracle's on the evaluation states, not on validation's" in shown.getvalue()
+    assert "evaluation states" not in plain.getvalue()

@@ -89,6 +89,8 @@ class ConsoleProgress:
         self.t0 = time.perf_counter()
         head = (f"{self.label}: task {config.task}, {config.algo}, {config.reward} reward, {config.preset} preset, "
                 f"seed {config.seed}, {config.steps:,} steps on {config.n_envs} env(s), {config.engine} engine")
+        if ceiling is not None:  # other states than validation's: a guide, not the validation's own limit
+            head += "\n  the ceiling beside each validation is the oracle's on the evaluation states, not on validation's"
         if not self.live:
             print(head + (f", resuming at {done:,}" if done else ""), file=self.stream, flush=True)
             return
