@@ -29,7 +29,7 @@ def _ceil(rep) -> str:
                      (rep.ceiling(t) for t in sorted(rep.tolerances)))
 
 
-def _prefix_check_ratio(name: str, prog, rep) -> None:
+def _prefix_check_ratio(prog, rep) -> None:
     """The search checks every IPOPT solution's prefixes: time that check on the report's action
     sequences as the search does it (CasADi rollout, one pass) against the simulator's numpy
     replay checked the same way, in this run; both must give the same prefixes."""
@@ -84,7 +84,7 @@ def main() -> int:
             if name == "dc_motor" and task == "reach":
                 ok = dt < 60.0
                 print(f"  bar: 1000 DC motor states under 60 s -> {'met' if ok else 'MISSED'} ({dt:.1f} s)")
-        _prefix_check_ratio(name, prog, reports[-1])
+        _prefix_check_ratio(prog, reports[-1])
         if len(reports) > 1:
             t0 = time.perf_counter()
             improved = tighten(prog, reports)

@@ -372,3 +372,7 @@ def test_the_progress_says_whose_ceiling_it_shows_beside_validation():
     ConsoleProgress(plain).start(cfg, 0, None)
     assert "the oracle's on the evaluation states, not on validation's" in shown.getvalue()
     assert "evaluation states" not in plain.getvalue()
+    resumed = io.StringIO()
+    ConsoleProgress(resumed).start(cfg, 50, {30: 0.99})
+    head, whose = resumed.getvalue().splitlines()
+    assert head.endswith("resuming at 50") and whose.strip().startswith("the ceiling beside each validation")

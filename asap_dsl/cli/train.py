@@ -89,10 +89,13 @@ class ConsoleProgress:
         self.t0 = time.perf_counter()
         head = (f"{self.label}: task {config.task}, {config.algo}, {config.reward} reward, {config.preset} preset, "
                 f"seed {config.seed}, {config.steps:,} steps on {config.n_envs} env(s), {config.engine} engine")
-        if ceiling is not None:  # other states than validation's: a guide, not the validation's own limit
-            head += "\n  the ceiling beside each validation is the oracle's on the evaluation states, not on validation's"
+        # Other states than validation's: a guide, not the validation's own limit.
+        whose = ("  the ceiling beside each validation is the oracle's on the evaluation states, not on validation's"
+                 if ceiling is not None else None)
         if not self.live:
             print(head + (f", resuming at {done:,}" if done else ""), file=self.stream, flush=True)
+            if whose:
+                print(whose, file=self.stream, flush=True)
             return
         from rich.console import Console, Group
         from rich.live import Live
@@ -105,6 +108,8 @@ class ConsoleProgress:
                             TimeElapsedColumn(), TextColumn("ETA"), TimeRemainingColumn(), console=console)
         self.text = Text("  validation: pending", overflow="fold")
         console.print(head)
+        if whose:
+            console.print(whose)
         self.task_id = self.bar.add_task("steps", total=config.steps, completed=done, rate="")
         self.view = Live(Group(self.bar, self.text), console=console, refresh_per_second=4)
         self.view.start()
