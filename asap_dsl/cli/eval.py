@@ -1,5 +1,5 @@
-"""``asapc eval RUN [--episodes N] [--tolerances 30,25] [--seed S] [--format json] [--plot [PATH]]
-[--video FILE]``: the success rates of a trained run beside the oracle's ceiling, with ``--plot`` a
+"""``asapc eval RUN [--episodes N] [--tolerances 30,25] [--seed S] [--lookahead N] [--format json]
+[--plot [PATH]] [--video FILE]``: the success rates of a trained run beside the oracle's ceiling, with ``--plot`` a
 picture of example trajectories in the state space (:mod:`asap_dsl.backends.compare.phase_plots`),
 with ``--video`` an MP4 of the first evaluation states (:mod:`asap_dsl.render`).
 
@@ -19,7 +19,8 @@ from typing import Optional, TextIO
 from ..runfiles import shown
 from ..runs import json_safe
 from ..sampling import EVAL_SEED
-from .args import InputError, UsageError, add_episodes, add_format, add_seed, add_workers, tolerances_list, workers
+from .args import (InputError, UsageError, add_episodes, add_format, add_seed, add_workers, lookahead_steps,
+                   tolerances_list, workers)
 
 __all__ = ["eval_command", "fill_eval_subparser"]
 
@@ -31,6 +32,10 @@ def fill_eval_subparser(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--tolerances", type=tolerances_list, help="comma-separated steps (default: the task's)")
     add_seed(p, EVAL_SEED, f"seed of the initial states (default {EVAL_SEED})")
     p.add_argument("--spec", help="evaluate against this spec file (it must be the one the run was trained on)")
+    p.add_argument("--lookahead", type=lookahead_steps, default=0, metavar="N",
+                   help="refine the policy by a look-ahead of N steps (1-3) on the spec's simulator: candidate "
+                        "actions for the next N steps, the policy after them, the soonest reach taken "
+                        "(never later than the policy; eval.json keeps the policy's own evaluation)")
     p.add_argument("--no-oracle", action="store_true", help="do not compute the oracle's ceiling when it is not cached")
     add_workers(p, "processes for the oracle")
     add_format(p)
@@ -67,7 +72,7 @@ def eval_command(args: argparse.Namespace, out: Optional[TextIO] = None, err: Op
         try:
             ev = evaluate(args.run, episodes=args.episodes, tolerances=args.tolerances, seed=args.seed, spec=args.spec,
                           oracle="cache" if args.no_oracle else "auto", workers=n_workers, progress=progress,
-                          started=started)
+                          started=started, lookahead=args.lookahead)
         finally:
             progress.close()
     except RunWriteError as e:  # evaluated, but eval.json could not be stored: shown, then said

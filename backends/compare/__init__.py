@@ -5,10 +5,11 @@ plots (plots).
     from asap_dsl.backends.compare import compare
 """
 
-from .controllers import GreedyController, OracleController, candidate_actions
+from .controllers import GreedyController, LookaheadController, OracleController, candidate_actions, lookahead_problem
 from .paired import CompareResult, compare
 from .report import Column, Method, ReportData, markdown, write
 from .sweep import Job, JobResult, SweepInterrupted, execute, plan
 
-__all__ = ["Column", "CompareResult", "GreedyController", "Job", "JobResult", "Method", "OracleController",
-           "ReportData", "SweepInterrupted", "candidate_actions", "compare", "execute", "markdown", "plan", "write"]
+__all__ = ["Column", "CompareResult", "GreedyController", "Job", "JobResult", "LookaheadController", "Method",
+           "OracleController", "ReportData", "SweepInterrupted", "candidate_actions", "compare", "execute",
+           "lookahead_problem", "markdown", "plan", "write"]

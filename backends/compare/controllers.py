@@ -7,6 +7,11 @@
   ``avoid`` nor leave the state space.
 * :class:`OracleController` — the oracle's own action sequences replayed: the ceiling as a row
   of the report, and a check that the rollout reproduces the oracle's minimum times.
+* :class:`LookaheadController` — any controller (a trained policy) refined on the simulator:
+  at each step it tries candidate actions for the next few steps, follows the controller after
+  them to the deadline, and takes the first action of the candidate that reaches ``asap``
+  soonest (Bertsekas' rollout algorithm). The dynamics are deterministic, so it is never later
+  than the controller it refines.
 """
 
 from __future__ import annotations
@@ -18,7 +23,7 @@ import numpy as np
 
 from asap_dsl.rewards import is_static, static_eval
 
-__all__ = ["GreedyController", "OracleController", "candidate_actions"]
+__all__ = ["GreedyController", "LookaheadController", "OracleController", "candidate_actions", "lookahead_problem"]
 
 
 def candidate_actions(low: np.ndarray, high: np.ndarray, budget: int = 125) -> np.ndarray:
@@ -100,3 +105,114 @@ class OracleController:
             if p is not None and t < len(p):
                 out[i] = p[t]
         return out
+
+
+def lookahead_problem(program, task: Optional[str] = None) -> Optional[str]:
+    """Why :class:`LookaheadController` cannot refine a controller on ``task`` (None: it can).
+
+    The look-ahead restarts the task from the current state; that is the same task only where
+    nothing before that state matters: ``asap`` and ``avoid`` without temporal operators, and no
+    ``observe time``."""
+    model = program.task(task).model
+    if not is_static(model.asap) or (model.avoid is not None and not is_static(model.avoid)):
+        return (f"task {model.name}: the look-ahead needs `asap` and `avoid` without temporal operators "
+                "(it restarts the task from the current state, where their history is lost)")
+    if "time" in model.observe:
+        return (f"task {model.name}: the look-ahead cannot refine a policy that observes time "
+                "(it restarts the task from the current state)")
+    return None
+
+
+class _Prefix:
+    """Fixed actions for the first steps of each entry (NaN: the base controller's), then the base."""
+
+    def __init__(self, base, prefix: np.ndarray):
+        self.base, self.prefix = base, prefix  # prefix [H, N, m]
+
+    def reset(self, states: np.ndarray) -> None:
+        pass
+
+    def act(self, obs: np.ndarray, states: np.ndarray, t: int) -> np.ndarray:
+        if t >= len(self.prefix):
+            return self.base.act(obs, states, t)
+        a = self.prefix[t]
+        free = np.isnan(a).any(axis=1)
+        if free.any():
+            a = a.copy()
+            a[free] = np.asarray(self.base.act(obs, states, t), dtype=np.float64)[free]
+        return a
+
+
+class LookaheadController:
+    """``base`` refined by a look-ahead of ``steps`` steps on a copy of the task's environment.
+
+    Candidates: the first action from the base's own and a grid over the action box (at most
+    ``budget`` points, corners included); each later action of the look-ahead from the base's
+    own and the box's corners (the bang-bang actions of minimum-time control). Each candidate
+    is rolled out with the base after it to the deadline, on the same rules as any evaluation
+    (:class:`asap_dsl.rollout.Evaluator`); the first action of the one that reaches soonest
+    is taken, the base's own on ties and where none reaches. Because the base's continuation of
+    the chosen candidate is among the next step's candidates, the predicted reach never gets
+    later: on deterministic dynamics the refined controller reaches no later than ``base`` from
+    any state (``tests/test_lookahead.py``).
+
+    Cost: ``(1 + grid) x (1 + 2^m)^(steps - 1)`` candidates, each rolled out over the rest of the
+    deadline, at every step. ``base`` is reset by those rollouts: it must act on any batch (a
+    trained policy does). ``max_batch`` bounds the rows rolled out at once (memory).
+    """
+
+    def __init__(self, program, base, task: Optional[str] = None, steps: int = 2, budget: int = 27,
+                 max_batch: int = 1 << 16):
+        problem = lookahead_problem(program, task)
+        if problem is not None:
+            raise ValueError(problem)
+        if not 1 <= int(steps) <= 3:
+            raise ValueError(f"the look-ahead's steps must be 1, 2 or 3; got {steps}")
+        self.program, self.base = program, base
+        self.task = program.task(task).model.name
+        self.deadline = program.task(task).model.deadline
+        system = program.system
+        self.low, self.high = system.action_low, system.action_high
+        m = system.n_action
+        free = np.full((1, m), np.nan)  # "the base's own action here"
+        first = np.concatenate([free, candidate_actions(self.low, self.high, budget)])
+        later = np.concatenate([free, candidate_actions(self.low, self.high, 2 ** m)])
+        seqs = [[a] for a in first]
+        for _ in range(int(steps) - 1):
+            seqs = [s + [a] for s in seqs for a in later]
+        self.sequences = np.array(seqs, dtype=np.float64)  # [K, steps, m]
+        self.max_batch = int(max_batch)
+        self.chunk = max(1, self.max_batch // len(self.sequences))
+        self.inner = None
+        self.refined = 0  # steps where a candidate beat the base's own action
+
+    def reset(self, states: np.ndarray) -> None:
+        from asap_dsl.rollout import Evaluator
+
+        K = len(self.sequences)
+        rows = min(len(states), self.chunk) * K
+        if self.inner is None or len(self.inner.states) != rows:
+            self.inner = Evaluator(self.program, self.task, np.repeat(states[:1], rows, axis=0))
+        self.refined = 0
+
+    def act(self, obs: np.ndarray, states: np.ndarray, t: int) -> np.ndarray:
+        own = np.clip(np.asarray(self.base.act(obs, states, t), dtype=np.float64), self.low, self.high)
+        out = own.copy()
+        for lo in range(0, len(states), self.chunk):
+            hi = min(lo + self.chunk, len(states))
+            out[lo:hi] = self._refine(states[lo:hi], own[lo:hi], t)
+        return out
+
+    def _refine(self, states: np.ndarray, own: np.ndarray, t: int) -> np.ndarray:
+        K, H = self.sequences.shape[:2]
+        n = len(states)
+        rows = len(self.inner.states) // K
+        x = np.repeat(np.concatenate([states, np.repeat(states[-1:], rows - n, axis=0)]), K, axis=0)
+        prefix = np.ascontiguousarray(np.tile(self.sequences, (rows, 1, 1)).transpose(1, 0, 2))
+        result = self.inner.run(_Prefix(self.base, prefix), states=x, steps=self.deadline - t)
+        reach = result.t_reach.reshape(rows, K)[:n]
+        best = np.argmin(reach, axis=1)  # the first minimum: the base's own (index 0) on ties
+        best[~(reach[np.arange(n), best] < reach[:, 0])] = 0
+        self.refined += int(np.count_nonzero(best))
+        first = self.sequences[best, 0]
+        return np.where(np.isnan(first), own, first)

@@ -231,7 +231,7 @@ def evaluate(run: Union[str, Path, RunDir], *, episodes: int = 1000, tolerances:
              seed: int = EVAL_SEED, spec: Union[str, Path, None] = None, oracle: str = "auto",
              workers: Optional[int] = None, write: Optional[bool] = None,
              progress: Optional[Callable[[int], None]] = None,
-             started: Optional[Callable[[], None]] = None) -> Evaluation:
+             started: Optional[Callable[[], None]] = None, lookahead: int = 0) -> Evaluation:
     """Evaluate a run's best model, acting deterministically, on ``episodes`` seeded initial states.
 
     :param run: the run directory (written by :func:`asap_dsl.backends.rl.training.train`).
@@ -250,6 +250,9 @@ def evaluate(run: Union[str, Path, RunDir], *, episodes: int = 1000, tolerances:
         evaluation: its episode count, seed 2024 and the task's tolerances).
     :param progress: told of the oracle's states solved while it computes (``progress(k)``);
         ``started()`` once before it starts (neither when the ceiling is cached).
+    :param lookahead: 0 for the policy alone; 1–3 for the policy refined by a look-ahead of that
+        many steps on the spec's simulator (:class:`~asap_dsl.backends.compare.LookaheadController`;
+        never written to ``eval.json``, which is the policy's own evaluation).
     :return: success rates with their intervals and ceilings, steps to reach, failures, ASAP gap.
     :raises asap_dsl.runs.RunError: the run cannot be evaluated (one sentence); a failed write of
         ``eval.json`` is :class:`~asap_dsl.runs.RunWriteError` with the evaluation as ``.evaluation``.
@@ -265,14 +268,16 @@ def evaluate(run: Union[str, Path, RunDir], *, episodes: int = 1000, tolerances:
     owned = run_dir.lock is None
     run_dir.acquire(exclusive=False)  # held until eval.json is written: nobody retrains it meanwhile
     try:
-        return _evaluate(load_run(run_dir, spec), episodes, tolerances, seed, oracle, workers, write, progress, started)
+        return _evaluate(load_run(run_dir, spec), episodes, tolerances, seed, oracle, workers, write, progress, started,
+                         lookahead)
     finally:
         if owned:
             run_dir.release()
 
 
 def _evaluate(loaded: LoadedRun, episodes: int, tolerances: Optional[Sequence[int]], seed: int, oracle: str,
-              workers: Optional[int], write: Optional[bool], progress=None, started=None) -> Evaluation:
+              workers: Optional[int], write: Optional[bool], progress=None, started=None,
+              lookahead: int = 0) -> Evaluation:
     prog, cfg = loaded.program, loaded.config
     task = prog.task(cfg.task).model
     tols = list(tolerances) if tolerances else list(task.tolerances)
@@ -280,9 +285,17 @@ def _evaluate(loaded: LoadedRun, episodes: int, tolerances: Optional[Sequence[in
         if not 1 <= int(T) <= task.deadline:
             raise ValueError(f"tolerance {T} is outside 1..{task.deadline} (the task's deadline: episodes end there)")
     check_batch(prog, cfg.task, int(episodes), f"--episodes {int(episodes):,}", cfg.reward)  # exit 2 beyond memory
+    controller = loaded.controller()
+    method = f"{cfg.algo} ({cfg.reward} reward, {cfg.preset} preset, seed {cfg.seed})"
+    if lookahead:
+        from ..compare.controllers import LookaheadController
+
+        controller = LookaheadController(prog, controller, cfg.task, steps=int(lookahead))  # ValueError: why not
+        method += f", refined by a {int(lookahead)}-step look-ahead"
+        write = False  # eval.json is the policy's own evaluation
     start = time.perf_counter()
     states = task_states(prog.system, task, int(episodes), seed=seed)
-    result = Evaluator(prog, cfg.task, states, reward=cfg.reward).run(loaded.controller())
+    result = Evaluator(prog, cfg.task, states, reward=cfg.reward).run(controller)
     seconds = time.perf_counter() - start
     ceiling = None
     if oracle != "off":
@@ -290,8 +303,12 @@ def _evaluate(loaded: LoadedRun, episodes: int, tolerances: Optional[Sequence[in
 
         ceiling = oracle_for(prog, cfg.task, seed, int(episodes), compute=oracle == "auto", workers=workers,
                              partial=True, progress=progress, started=started)
-    ev = summarise(result, method=f"{cfg.algo} ({cfg.reward} reward, {cfg.preset} preset, seed {cfg.seed})",
+    ev = summarise(result, method=method,
                    prog=prog, task=cfg.task, seed=seed, tolerances=tols, oracle=ceiling, seconds=seconds)
+    if lookahead:
+        ev.notes.append(f"each action chosen among {len(controller.sequences)} candidate {int(lookahead)}-step "
+                        "look-aheads on the spec's simulator, the policy after them; the policy's own action "
+                        f"kept unless one reaches sooner (one did at {controller.refined:,} steps of the states)")
     if seed == cfg.validation_seed:
         ev.notes.append(f"seed {seed} draws the validation states this run selected its model on: "
                         "these rates flatter it")

@@ -1,0 +1,85 @@
+"""The look-ahead that refines a policy on the spec's simulator (``asapc eval --lookahead``)."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+import asap_dsl
+from asap_dsl.backends.compare.controllers import LookaheadController, lookahead_problem
+from asap_dsl.rollout import Evaluator
+from asap_dsl.sampling import task_states
+from conftest import ROOT, asapc, one_line_error
+
+FAST = {"net_arch": [16, 16], "learning_starts": 64, "batch_size": 32}
+
+
+class Sluggish:
+    """A proportional controller on the DC motor's angle, with gains too low to be quick: a policy
+    that reaches, late, from some states."""
+
+    def reset(self, states: np.ndarray) -> None:
+        pass
+
+    def act(self, obs: np.ndarray, states: np.ndarray, t: int) -> np.ndarray:
+        theta, omega = states[:, 0], states[:, 1]
+        return np.clip(4.0 * (np.pi / 2 - theta) - 0.2 * omega, -20, 20)[:, None]
+
+
+@pytest.fixture(scope="module")
+def motor():
+    prog = asap_dsl.load(ROOT / "specs" / "dc_motor.asap")
+    states = task_states(prog.system, prog.task("reach_avoid").model, 48, seed=5)
+    return prog, Evaluator(prog, "reach_avoid", states)
+
+
+@pytest.mark.parametrize("steps", [1, 2])
+def test_the_lookahead_is_never_later_than_the_controller_it_refines(motor, steps):
+    prog, ev = motor
+    base = ev.run(Sluggish())
+    refined = ev.run(LookaheadController(prog, Sluggish(), "reach_avoid", steps=steps))
+    # on deterministic dynamics: the base's own continuation is always a candidate
+    assert np.all(refined.t_reach <= base.t_reach)
+    assert refined.rate(15) > base.rate(15) + 0.1  # and it makes the slow controller quicker
+    assert refined.failures()["avoid"] <= base.failures()["avoid"]
+
+
+def test_the_lookahead_in_chunks_chooses_as_in_one_batch(motor):
+    prog, ev = motor
+    whole = ev.run(LookaheadController(prog, Sluggish(), "reach_avoid", steps=1))
+    chunked = LookaheadController(prog, Sluggish(), "reach_avoid", steps=1, max_batch=5 * 28)  # 5 states a batch
+    assert chunked.chunk == 5
+    assert np.array_equal(ev.run(chunked).t_reach, whole.t_reach)
+
+
+def test_a_task_with_history_or_time_is_refused_in_one_sentence():
+    prog = asap_dsl.load(ROOT / "examples" / "double_integrator.asap")  # `historically` in asap, observes time
+    why = lookahead_problem(prog, "park")
+    assert why is not None and "temporal operators" in why and "\n" not in why
+    with pytest.raises(ValueError, match="temporal operators"):
+        LookaheadController(prog, Sluggish(), "park")
+    motor = asap_dsl.load(ROOT / "specs" / "dc_motor.asap")
+    assert lookahead_problem(motor, "reach") is None
+    with pytest.raises(ValueError, match="1, 2 or 3"):
+        LookaheadController(motor, Sluggish(), "reach", steps=4)
+
+
+def test_eval_lookahead_reports_the_refined_policy_and_keeps_eval_json(tiny, tmp_path, capsys):
+    run = tmp_path / "run"
+    asap_dsl.train(tiny, steps=64, n_envs=2, out=run, settings=FAST, eval_episodes=10, engine="sb3")
+    own = (run / "eval.json").read_bytes()
+    code, out, err = asapc(capsys, "eval", run, "--episodes", "10", "--lookahead", "1", "--no-oracle", "--format", "json")
+    assert code == 0, err
+    data = json.loads(out)
+    assert "refined by a 1-step look-ahead" in data["method"]
+    assert any("candidate 1-step look-aheads" in n for n in data["notes"])
+    assert (run / "eval.json").read_bytes() == own  # the policy's own evaluation stays the run's
+    plain = json.loads(asapc(capsys, "eval", run, "--episodes", "10", "--no-oracle", "--format", "json")[1])
+    for mine, theirs in zip(data["rows"], plain["rows"]):  # never below the policy it refines
+        assert mine["tolerance"] == theirs["tolerance"] and mine["rate"] >= theirs["rate"]
+    code, out, err = asapc(capsys, "eval", run, "--lookahead", "x")
+    assert code == 2 and "expected a whole number" in err and "Traceback" not in err
+    code, out, err = asapc(capsys, "eval", run, "--lookahead", "5")
+    assert code == 2 and "expected 0, 1, 2 or 3 steps, got 5" in err
