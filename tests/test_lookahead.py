@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 import asap_dsl
-from asap_dsl.backends.compare.controllers import LookaheadController, lookahead_problem
+from asap_dsl.backends.compare.controllers import LookaheadController, hold_ladder, lookahead_problem
 from asap_dsl.rollout import Evaluator
 from asap_dsl.sampling import task_states
 from conftest import ROOT, asapc, one_line_error
@@ -35,11 +35,16 @@ def motor():
     return prog, Evaluator(prog, "reach_avoid", states)
 
 
-@pytest.mark.parametrize("steps", [1, 2])
-def test_the_lookahead_is_never_later_than_the_controller_it_refines(motor, steps):
+def test_the_hold_ladder():
+    assert hold_ladder(1) == [1] and hold_ladder(2) == [1, 2] and hold_ladder(4) == [1, 2, 3, 4]
+    assert hold_ladder(8) == [1, 2, 3, 5, 8] and hold_ladder(10) == [1, 2, 3, 5, 8, 10]
+
+
+@pytest.mark.parametrize("hold", [1, 5])
+def test_the_lookahead_is_never_later_than_the_controller_it_refines(motor, hold):
     prog, ev = motor
     base = ev.run(Sluggish())
-    refined = ev.run(LookaheadController(prog, Sluggish(), "reach_avoid", steps=steps))
+    refined = ev.run(LookaheadController(prog, Sluggish(), "reach_avoid", hold=hold))
     # on deterministic dynamics: the base's own continuation is always a candidate
     assert np.all(refined.t_reach <= base.t_reach)
     assert refined.rate(15) > base.rate(15) + 0.1  # and it makes the slow controller quicker
@@ -48,9 +53,9 @@ def test_the_lookahead_is_never_later_than_the_controller_it_refines(motor, step
 
 def test_the_lookahead_in_chunks_chooses_as_in_one_batch(motor):
     prog, ev = motor
-    whole = ev.run(LookaheadController(prog, Sluggish(), "reach_avoid", steps=1))
-    chunked = LookaheadController(prog, Sluggish(), "reach_avoid", steps=1, max_batch=5 * 28)  # 5 states a batch
-    assert chunked.chunk == 5
+    whole = ev.run(LookaheadController(prog, Sluggish(), "reach_avoid", hold=3))
+    chunked = LookaheadController(prog, Sluggish(), "reach_avoid", hold=3, max_batch=5 * 83)  # 5 states a batch
+    assert chunked.K == 2 + 27 * 3 and chunked.chunk == 5
     assert np.array_equal(ev.run(chunked).t_reach, whole.t_reach)
 
 
@@ -62,24 +67,24 @@ def test_a_task_with_history_or_time_is_refused_in_one_sentence():
         LookaheadController(prog, Sluggish(), "park")
     motor = asap_dsl.load(ROOT / "specs" / "dc_motor.asap")
     assert lookahead_problem(motor, "reach") is None
-    with pytest.raises(ValueError, match="1, 2 or 3"):
-        LookaheadController(motor, Sluggish(), "reach", steps=4)
+    with pytest.raises(ValueError, match="1 to 30 steps"):
+        LookaheadController(motor, Sluggish(), "reach", hold=31)
 
 
 def test_eval_lookahead_reports_the_refined_policy_and_keeps_eval_json(tiny, tmp_path, capsys):
     run = tmp_path / "run"
     asap_dsl.train(tiny, steps=64, n_envs=2, out=run, settings=FAST, eval_episodes=10, engine="sb3")
     own = (run / "eval.json").read_bytes()
-    code, out, err = asapc(capsys, "eval", run, "--episodes", "10", "--lookahead", "1", "--no-oracle", "--format", "json")
+    code, out, err = asapc(capsys, "eval", run, "--episodes", "10", "--lookahead", "3", "--no-oracle", "--format", "json")
     assert code == 0, err
     data = json.loads(out)
-    assert "refined by a 1-step look-ahead" in data["method"]
-    assert any("candidate 1-step look-aheads" in n for n in data["notes"])
+    assert "refined by a look-ahead holding actions up to 3 steps" in data["method"]
+    assert any("grid actions held 1, 2, 3 steps" in n for n in data["notes"])
     assert (run / "eval.json").read_bytes() == own  # the policy's own evaluation stays the run's
     plain = json.loads(asapc(capsys, "eval", run, "--episodes", "10", "--no-oracle", "--format", "json")[1])
     for mine, theirs in zip(data["rows"], plain["rows"]):  # never below the policy it refines
         assert mine["tolerance"] == theirs["tolerance"] and mine["rate"] >= theirs["rate"]
     code, out, err = asapc(capsys, "eval", run, "--lookahead", "x")
     assert code == 2 and "expected a whole number" in err and "Traceback" not in err
-    code, out, err = asapc(capsys, "eval", run, "--lookahead", "5")
-    assert code == 2 and "expected 0, 1, 2 or 3 steps, got 5" in err
+    code, out, err = asapc(capsys, "eval", run, "--lookahead", "21", "--no-oracle")
+    assert code == 2 and "1 to 20 steps (the deadline); got 21" in one_line_error(err)

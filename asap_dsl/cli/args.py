@@ -14,7 +14,7 @@ from typing import Callable, Optional
 from ..limits import LIMITS, available_cores
 
 __all__ = ["CliError", "EMPTY_TASK", "InputError", "UsageError", "add_episodes", "add_format", "add_seed",
-           "add_task", "add_workers", "check_task", "episodes_int", "lookahead_steps", "names_list", "natural_int",
+           "add_task", "add_workers", "check_task", "episodes_int", "names_list", "natural_int",
            "planner_samples",
            "positive_amount",
            "positive_int", "share_float", "seed_int", "steps_int", "tolerances_list", "workers"]
@@ -54,14 +54,6 @@ def _whole(text: str) -> int:
         return int(text)
     except ValueError:
         raise argparse.ArgumentTypeError(f"expected a whole number, got '{text}'") from None
-
-
-def lookahead_steps(text: str) -> int:
-    """argparse type: ``--lookahead``'s steps, 0 (off) to 3."""
-    value = _whole(text)
-    if not 0 <= value <= 3:
-        raise argparse.ArgumentTypeError(f"expected 0, 1, 2 or 3 steps, got {value}")
-    return value
 
 
 def positive_int(text: str) -> int:

@@ -19,7 +19,7 @@ from typing import Optional, TextIO
 from ..runfiles import shown
 from ..runs import json_safe
 from ..sampling import EVAL_SEED
-from .args import (InputError, UsageError, add_episodes, add_format, add_seed, add_workers, lookahead_steps,
+from .args import (InputError, UsageError, add_episodes, add_format, add_seed, add_workers, natural_int,
                    tolerances_list, workers)
 
 __all__ = ["eval_command", "fill_eval_subparser"]
@@ -32,10 +32,10 @@ def fill_eval_subparser(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--tolerances", type=tolerances_list, help="comma-separated steps (default: the task's)")
     add_seed(p, EVAL_SEED, f"seed of the initial states (default {EVAL_SEED})")
     p.add_argument("--spec", help="evaluate against this spec file (it must be the one the run was trained on)")
-    p.add_argument("--lookahead", type=lookahead_steps, default=0, metavar="N",
-                   help="refine the policy by a look-ahead of N steps (1-3) on the spec's simulator: candidate "
-                        "actions for the next N steps, the policy after them, the soonest reach taken "
-                        "(never later than the policy; eval.json keeps the policy's own evaluation)")
+    p.add_argument("--lookahead", type=natural_int, default=0, metavar="N",
+                   help="refine the policy on the spec's simulator: candidate actions held for 1, 2, 3, 5, ... "
+                        "up to N steps, the policy after them, the soonest reach taken (never later than the "
+                        "policy; 8 is a good start; eval.json keeps the policy's own evaluation)")
     p.add_argument("--no-oracle", action="store_true", help="do not compute the oracle's ceiling when it is not cached")
     add_workers(p, "processes for the oracle")
     add_format(p)

@@ -8,7 +8,7 @@
 * :class:`OracleController` — the oracle's own action sequences replayed: the ceiling as a row
   of the report, and a check that the rollout reproduces the oracle's minimum times.
 * :class:`LookaheadController` — any controller (a trained policy) refined on the simulator:
-  at each step it tries candidate actions for the next few steps, follows the controller after
+  at each step it tries candidate actions held for a few steps, follows the controller after
   them to the deadline, and takes the first action of the candidate that reaches ``asap``
   soonest (Bertsekas' rollout algorithm). The dynamics are deterministic, so it is never later
   than the controller it refines.
@@ -23,7 +23,8 @@ import numpy as np
 
 from asap_dsl.rewards import is_static, static_eval
 
-__all__ = ["GreedyController", "LookaheadController", "OracleController", "candidate_actions", "lookahead_problem"]
+__all__ = ["GreedyController", "LookaheadController", "OracleController", "candidate_actions", "hold_ladder",
+           "lookahead_problem"]
 
 
 def candidate_actions(low: np.ndarray, high: np.ndarray, budget: int = 125) -> np.ndarray:
@@ -143,56 +144,69 @@ class _Prefix:
         return a
 
 
+def hold_ladder(longest: int) -> list[int]:
+    """How long the look-ahead holds a candidate action: 1, 2, 3, 5, 8, ... (each the sum of the
+    two before it) up to ``longest``, which closes the ladder."""
+    ladder = [1, 2]
+    while ladder[-1] + ladder[-2] < longest:
+        ladder.append(ladder[-1] + ladder[-2])
+    return [h for h in ladder if h < longest] + [int(longest)]
+
+
 class LookaheadController:
-    """``base`` refined by a look-ahead of ``steps`` steps on a copy of the task's environment.
+    """``base`` refined on a copy of the task's environment by holding candidate actions for a
+    few steps and following ``base`` after them.
 
-    Candidates: the first action from the base's own and a grid over the action box (at most
-    ``budget`` points, corners included); each later action of the look-ahead from the base's
-    own and the box's corners (the bang-bang actions of minimum-time control). Each candidate
-    is rolled out with the base after it to the deadline, on the same rules as any evaluation
-    (:class:`asap_dsl.rollout.Evaluator`); the first action of the one that reaches soonest
-    is taken, the base's own on ties and where none reaches. Because the base's continuation of
-    the chosen candidate is among the next step's candidates, the predicted reach never gets
-    later: on deterministic dynamics the refined controller reaches no later than ``base`` from
-    any state (``tests/test_lookahead.py``).
+    Candidates at each step, for each state: the base's own action; every point of a grid over
+    the action box (at most ``budget`` points, corners included: the bang-bang actions of
+    minimum-time control) held for 1, 2, 3, 5, ... up to ``hold`` steps (:func:`hold_ladder`);
+    and what is left of the candidate chosen at the step before. Each is rolled out with the
+    base after it to the deadline, on the rules of every evaluation (:class:`asap_dsl.rollout.
+    Evaluator`), and the one that reaches ``asap`` soonest gives the action (the base's own on
+    ties and where none reaches). Because the rest of the chosen candidate is among the next
+    step's candidates, the predicted reach never gets later: on deterministic dynamics the
+    refined controller reaches no later than ``base`` from any state (``tests/test_lookahead.py``).
 
-    Cost: ``(1 + grid) x (1 + 2^m)^(steps - 1)`` candidates, each rolled out over the rest of the
+    Cost: ``2 + grid x len(hold_ladder(hold))`` candidates, each rolled out over the rest of the
     deadline, at every step. ``base`` is reset by those rollouts: it must act on any batch (a
     trained policy does). ``max_batch`` bounds the rows rolled out at once (memory).
     """
 
-    def __init__(self, program, base, task: Optional[str] = None, steps: int = 2, budget: int = 27,
+    def __init__(self, program, base, task: Optional[str] = None, hold: int = 8, budget: int = 27,
                  max_batch: int = 1 << 16):
         problem = lookahead_problem(program, task)
         if problem is not None:
             raise ValueError(problem)
-        if not 1 <= int(steps) <= 3:
-            raise ValueError(f"the look-ahead's steps must be 1, 2 or 3; got {steps}")
+        model = program.task(task).model
+        if not 1 <= int(hold) <= model.deadline:
+            raise ValueError(f"the look-ahead holds an action for 1 to {model.deadline} steps (the deadline); "
+                             f"got {hold}")
         self.program, self.base = program, base
-        self.task = program.task(task).model.name
-        self.deadline = program.task(task).model.deadline
+        self.task, self.deadline = model.name, model.deadline
         system = program.system
         self.low, self.high = system.action_low, system.action_high
-        m = system.n_action
-        free = np.full((1, m), np.nan)  # "the base's own action here"
-        first = np.concatenate([free, candidate_actions(self.low, self.high, budget)])
-        later = np.concatenate([free, candidate_actions(self.low, self.high, 2 ** m)])
-        seqs = [[a] for a in first]
-        for _ in range(int(steps) - 1):
-            seqs = [s + [a] for s in seqs for a in later]
-        self.sequences = np.array(seqs, dtype=np.float64)  # [K, steps, m]
-        self.max_batch = int(max_batch)
-        self.chunk = max(1, self.max_batch // len(self.sequences))
+        self.holds = hold_ladder(int(hold))
+        m, H = system.n_action, self.holds[-1]
+        seqs = [np.full((H, m), np.nan)]  # NaN: the base's own action at that step
+        for a in candidate_actions(self.low, self.high, budget):
+            for h in self.holds:
+                seq = np.full((H, m), np.nan)
+                seq[:h] = a
+                seqs.append(seq)
+        self.sequences = np.array(seqs, dtype=np.float64)  # [K, H, m]; each state's plan comes last
+        self.K = len(self.sequences) + 1
+        self.chunk = max(1, int(max_batch) // self.K)
         self.inner = None
+        self.plan = np.empty((0, H, m))
         self.refined = 0  # steps where a candidate beat the base's own action
 
     def reset(self, states: np.ndarray) -> None:
         from asap_dsl.rollout import Evaluator
 
-        K = len(self.sequences)
-        rows = min(len(states), self.chunk) * K
+        rows = min(len(states), self.chunk) * self.K
         if self.inner is None or len(self.inner.states) != rows:
             self.inner = Evaluator(self.program, self.task, np.repeat(states[:1], rows, axis=0))
+        self.plan = np.full((len(states),) + self.sequences.shape[1:], np.nan)
         self.refined = 0
 
     def act(self, obs: np.ndarray, states: np.ndarray, t: int) -> np.ndarray:
@@ -200,19 +214,23 @@ class LookaheadController:
         out = own.copy()
         for lo in range(0, len(states), self.chunk):
             hi = min(lo + self.chunk, len(states))
-            out[lo:hi] = self._refine(states[lo:hi], own[lo:hi], t)
+            out[lo:hi] = self._refine(states[lo:hi], own[lo:hi], self.plan[lo:hi], t)
         return out
 
-    def _refine(self, states: np.ndarray, own: np.ndarray, t: int) -> np.ndarray:
-        K, H = self.sequences.shape[:2]
-        n = len(states)
+    def _refine(self, states: np.ndarray, own: np.ndarray, plan: np.ndarray, t: int) -> np.ndarray:
+        """The first actions for ``states``; ``plan`` (a view of the plans) is moved on a step."""
+        K, n = self.K, len(states)
         rows = len(self.inner.states) // K
-        x = np.repeat(np.concatenate([states, np.repeat(states[-1:], rows - n, axis=0)]), K, axis=0)
-        prefix = np.ascontiguousarray(np.tile(self.sequences, (rows, 1, 1)).transpose(1, 0, 2))
-        result = self.inner.run(_Prefix(self.base, prefix), states=x, steps=self.deadline - t)
+        pad = rows - n  # the last chunk: filled with copies of its last state
+        cands = np.concatenate([np.broadcast_to(self.sequences, (n,) + self.sequences.shape), plan[:, None]], axis=1)
+        x = np.concatenate([states, np.repeat(states[-1:], pad, axis=0)])
+        c = np.concatenate([cands, np.repeat(cands[-1:], pad, axis=0)])
+        prefix = np.ascontiguousarray(c.reshape(rows * K, *c.shape[2:]).transpose(1, 0, 2))
+        result = self.inner.run(_Prefix(self.base, prefix), states=np.repeat(x, K, axis=0), steps=self.deadline - t)
         reach = result.t_reach.reshape(rows, K)[:n]
         best = np.argmin(reach, axis=1)  # the first minimum: the base's own (index 0) on ties
         best[~(reach[np.arange(n), best] < reach[:, 0])] = 0
         self.refined += int(np.count_nonzero(best))
-        first = self.sequences[best, 0]
-        return np.where(np.isnan(first), own, first)
+        chosen = cands[np.arange(n), best]
+        plan[:, :-1], plan[:, -1] = chosen[:, 1:], np.nan
+        return np.where(np.isnan(chosen[:, 0]), own, chosen[:, 0])

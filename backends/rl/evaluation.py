@@ -250,9 +250,10 @@ def evaluate(run: Union[str, Path, RunDir], *, episodes: int = 1000, tolerances:
         evaluation: its episode count, seed 2024 and the task's tolerances).
     :param progress: told of the oracle's states solved while it computes (``progress(k)``);
         ``started()`` once before it starts (neither when the ceiling is cached).
-    :param lookahead: 0 for the policy alone; 1–3 for the policy refined by a look-ahead of that
-        many steps on the spec's simulator (:class:`~asap_dsl.backends.compare.LookaheadController`;
-        never written to ``eval.json``, which is the policy's own evaluation).
+    :param lookahead: 0 for the policy alone; N for the policy refined on the spec's simulator by
+        candidate actions held for up to N steps, the policy after them
+        (:class:`~asap_dsl.backends.compare.LookaheadController`; never written to ``eval.json``,
+        which is the policy's own evaluation).
     :return: success rates with their intervals and ceilings, steps to reach, failures, ASAP gap.
     :raises asap_dsl.runs.RunError: the run cannot be evaluated (one sentence); a failed write of
         ``eval.json`` is :class:`~asap_dsl.runs.RunWriteError` with the evaluation as ``.evaluation``.
@@ -290,8 +291,8 @@ def _evaluate(loaded: LoadedRun, episodes: int, tolerances: Optional[Sequence[in
     if lookahead:
         from ..compare.controllers import LookaheadController
 
-        controller = LookaheadController(prog, controller, cfg.task, steps=int(lookahead))  # ValueError: why not
-        method += f", refined by a {int(lookahead)}-step look-ahead"
+        controller = LookaheadController(prog, controller, cfg.task, hold=int(lookahead))  # ValueError: why not
+        method += f", refined by a look-ahead holding actions up to {int(lookahead)} steps"
         write = False  # eval.json is the policy's own evaluation
     start = time.perf_counter()
     states = task_states(prog.system, task, int(episodes), seed=seed)
@@ -306,9 +307,11 @@ def _evaluate(loaded: LoadedRun, episodes: int, tolerances: Optional[Sequence[in
     ev = summarise(result, method=method,
                    prog=prog, task=cfg.task, seed=seed, tolerances=tols, oracle=ceiling, seconds=seconds)
     if lookahead:
-        ev.notes.append(f"each action chosen among {len(controller.sequences)} candidate {int(lookahead)}-step "
-                        "look-aheads on the spec's simulator, the policy after them; the policy's own action "
-                        f"kept unless one reaches sooner (one did at {controller.refined:,} steps of the states)")
+        holds = ", ".join(str(h) for h in controller.holds)
+        ev.notes.append(f"each action chosen on the spec's simulator among {controller.K} candidates (the policy's "
+                        f"own, grid actions held {holds} steps, the rest of the last choice), the policy after "
+                        f"them; the policy's own kept unless one reaches sooner (one did at {controller.refined:,} "
+                        "steps of the states)")
     if seed == cfg.validation_seed:
         ev.notes.append(f"seed {seed} draws the validation states this run selected its model on: "
                         "these rates flatter it")
