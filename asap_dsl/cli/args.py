@@ -14,8 +14,7 @@ from typing import Callable, Optional
 from ..limits import LIMITS, available_cores
 
 __all__ = ["CliError", "EMPTY_TASK", "InputError", "UsageError", "add_episodes", "add_format", "add_seed",
-           "add_task", "add_workers", "check_task", "episodes_int", "names_list", "natural_int",
-           "planner_samples",
+           "add_task", "add_workers", "check_task", "episodes_int", "names_list", "natural_int", "planner_samples",
            "positive_amount",
            "positive_int", "share_float", "seed_int", "steps_int", "tolerances_list", "workers"]
 

@@ -169,11 +169,12 @@ class LookaheadController:
 
     Cost: ``2 + grid x len(hold_ladder(hold))`` candidates, each rolled out over the rest of the
     deadline, at every step. ``base`` is reset by those rollouts: it must act on any batch (a
-    trained policy does). ``max_batch`` bounds the rows rolled out at once (memory).
+    trained policy does). ``max_batch`` bounds the rows rolled out at once (memory; default 65,536,
+    2,048 on a black box, whose every row holds a simulator's own data).
     """
 
     def __init__(self, program, base, task: Optional[str] = None, hold: int = 8, budget: int = 27,
-                 max_batch: int = 1 << 16):
+                 max_batch: Optional[int] = None):
         problem = lookahead_problem(program, task)
         if problem is not None:
             raise ValueError(problem)
@@ -195,6 +196,8 @@ class LookaheadController:
                 seqs.append(seq)
         self.sequences = np.array(seqs, dtype=np.float64)  # [K, H, m]; each state's plan comes last
         self.K = len(self.sequences) + 1
+        if max_batch is None:
+            max_batch = 1 << 11 if system.kind == "simulator" else 1 << 16
         self.chunk = max(1, int(max_batch) // self.K)
         self.inner = None
         self.plan = np.empty((0, H, m))
