@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import json
+import subprocess
+import sys
 
 import numpy as np
 import pytest
@@ -88,3 +90,24 @@ def test_eval_lookahead_reports_the_refined_policy_and_keeps_eval_json(tiny, tmp
     assert code == 2 and "expected a whole number" in err and "Traceback" not in err
     code, out, err = asapc(capsys, "eval", run, "--lookahead", "21", "--no-oracle")
     assert code == 2 and "1 to 20 steps (the deadline); got 21" in one_line_error(err)
+
+
+def test_compare_lookahead_adds_the_refined_row_to_table_1(tiny, tmp_path):
+    out = tmp_path / "report"
+    base = [sys.executable, "-m", "asap_dsl.cli", "compare", str(tiny), "--out", str(out), "--rewards", "asap",
+            "--seeds", "1", "--steps", "400", "--episodes", "40", "--workers", "1", "--engine", "sb3", "--quiet"]
+    bad = subprocess.run(base + ["--lookahead", "21"], capture_output=True, text=True, timeout=300)
+    assert bad.returncode == 2 and "--lookahead 21 is beyond the deadline of rail go (20 steps" in one_line_error(bad.stderr)
+    assert not (out / "runs").exists()  # refused before anything trained
+    r = subprocess.run(base + ["--lookahead", "3"], capture_output=True, text=True, timeout=600)
+    assert r.returncode == 0, r.stderr
+    md = (out / "report.md").read_text()
+    assert "ASAP-Phi (sac) + look-ahead 3" in md and "The look-ahead row is the first row's policies" in md
+    rows = {}
+    for line in md.splitlines():
+        cells = [c.strip() for c in line.strip("|").split("|")]
+        if len(cells) == 3 and cells[1] in ("ASAP-Phi (sac)", "ASAP-Phi (sac) + look-ahead 3"):
+            rows[(cells[0], cells[1])] = float(cells[2].split()[0].strip("*"))
+    for T in ("20", "10", "5"):  # the same states: never below the policy it refines
+        assert rows[(T, "ASAP-Phi (sac) + look-ahead 3")] >= rows[(T, "ASAP-Phi (sac)")], T
+    assert any(p.name.endswith("-lookahead3-n40.json") for p in (out / "methods").iterdir())

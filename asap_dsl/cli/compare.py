@@ -12,8 +12,8 @@ import sys
 import time
 from typing import Optional, TextIO
 
-from .args import (InputError, UsageError, add_episodes, add_workers, names_list, positive_amount, positive_int,
-                   steps_int, tolerances_list, workers)
+from .args import (InputError, UsageError, add_episodes, add_workers, names_list, natural_int, positive_amount,
+                   positive_int, steps_int, tolerances_list, workers)
 
 __all__ = ["SweepProgress", "compare_command", "fill_compare_subparser", "ray_address"]
 
@@ -56,6 +56,9 @@ def fill_compare_subparser(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--summaries", metavar="DIR",
                    help="keep each finished run's summary (manifest, spec, evaluation, curves) in DIR and read "
                         "them back before training: a sweep whose runs directory is lost goes on from DIR")
+    p.add_argument("--lookahead", type=natural_int, default=0, metavar="N",
+                   help="Table 1 also shows the first reward's policies refined on the spec's simulator by a "
+                        "look-ahead holding actions up to N steps (as `asapc eval --lookahead N`)")
     p.add_argument("--quiet", action="store_true", help="no progress display")
     p.set_defaults(func=compare_command)
     return p
@@ -142,7 +145,7 @@ def compare_command(args: argparse.Namespace, out: Optional[TextIO] = None, err:
     write the report and print its Table 1. ``out`` and ``err`` (standard output and error by
     default) take the summary and the progress."""
     import asap_dsl
-    from asap_dsl.backends.compare.paired import check_tolerances, compare
+    from asap_dsl.backends.compare.paired import check_lookahead, check_tolerances, compare
     from asap_dsl.backends.compare.report import markdown
     from asap_dsl.backends.compare.sweep import SweepInterrupted, job_config, plan
     from asap_dsl.backends.rl.presets import ALGORITHMS, PRESETS
@@ -162,6 +165,7 @@ def compare_command(args: argparse.Namespace, out: Optional[TextIO] = None, err:
         for j in jobs:  # every reward and setting checked before anything trains
             job_config(j, progs[j.spec])
         check_tolerances(jobs, args.table2_tolerances)
+        check_lookahead(jobs, args.lookahead)
     except KeyError as e:  # an unknown task
         raise UsageError(e.args[0]) from None
     except ValueError as e:  # ConfigError: a reward or setting
@@ -173,7 +177,8 @@ def compare_command(args: argparse.Namespace, out: Optional[TextIO] = None, err:
                           steps=args.steps, preset=args.preset, workers=n_workers, ray=args.ray, out=args.out,
                           episodes=args.episodes, on_event=progress, oracle_workers=available_cores(),
                           ray_timeout=args.ray_timeout, engine=args.engine, table2_tolerances=args.table2_tolerances,
-                          on_oracle=progress.oracle if progress else None, summaries=args.summaries)
+                          on_oracle=progress.oracle if progress else None, summaries=args.summaries,
+                          lookahead=args.lookahead)
         finally:  # the bar stops before anything else is printed
             if progress:
                 progress.close()

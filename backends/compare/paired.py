@@ -22,10 +22,11 @@ from asap_dsl.runsummary import read_examples, restore_summaries, save_summary
 from asap_dsl.sampling import EVAL_SEED, task_states
 
 from . import phase_plots, plots
+from .controllers import lookahead_problem
 from .report import REWARD_NAMES, Column, Method, ReportData, references, unique, write
 from .sweep import Job, SweepInterrupted, execute, load_result, plan
 
-__all__ = ["CompareResult", "check_tolerances", "compare", "robustness_until_reach"]
+__all__ = ["CompareResult", "check_lookahead", "check_tolerances", "compare", "robustness_until_reach"]
 
 
 @dataclass
@@ -68,6 +69,37 @@ def _baseline(prog, task: str, kind: str, states: np.ndarray, oracle, cache: Pat
     ev = summarise(res, method=label, prog=prog, task=task, seed=EVAL_SEED,
                    tolerances=list(prog.task(task).model.tolerances), oracle=oracle,
                    seconds=time.perf_counter() - start).to_dict()
+    atomic_write_json(path, ev)
+    return ev
+
+
+def _lookahead_evaluation(result: dict, prog, task: str, states: np.ndarray, oracle, hold: int,
+                          cache: Path) -> Optional[dict]:
+    """The run's policy refined by the look-ahead (:class:`.controllers.LookaheadController`) on
+    the sweep's states, cached beside the baselines under the model's hash; None for a summary
+    without its model."""
+    from ..rl.evaluation import load_run, summarise
+    from .controllers import LookaheadController
+
+    if not result.get("model", True):
+        return None
+    loaded = load_run(result["run_dir"])
+    model = (loaded.manifest.get("model") or {}).get("sha256", "")
+    name = f"{Path(result['run_dir']).name}-{str(model)[:16]}-lookahead{hold}-n{len(states)}"
+    path = cache / f"{name}.json"
+    if path.is_file():
+        try:
+            return json.loads(path.read_text(encoding="utf-8"))
+        except ValueError:
+            pass
+    ctrl = LookaheadController(prog, loaded.controller(), task, hold=hold)
+    start = time.perf_counter()
+    res = Evaluator(prog, task, states).run(ctrl)
+    cfg = loaded.config
+    ev = summarise(res, method=f"{cfg.algo} ({cfg.reward} reward, seed {cfg.seed}), look-ahead {hold}", prog=prog,
+                   task=task, seed=EVAL_SEED, tolerances=list(prog.task(task).model.tolerances), oracle=oracle,
+                   seconds=time.perf_counter() - start).to_dict()
+    ev = json.loads(json.dumps(json_safe(ev)))
     atomic_write_json(path, ev)
     return ev
 
@@ -164,7 +196,7 @@ def compare(specs: Sequence[str], *, tasks: Optional[Sequence[str]] = None,
             oracle_workers: Optional[int] = None, ray_timeout: float = 30.0,
             engine: Optional[str] = None, table2_tolerances: Sequence[int] = (),
             on_oracle: Optional[Callable[[str, int, int], None]] = None,
-            summaries: Optional[str] = None) -> CompareResult:
+            summaries: Optional[str] = None, lookahead: int = 0) -> CompareResult:
     """Train what is missing, evaluate everything on the same states, write the report.
     ``engine`` (sbx or sb3) trains every run; None: the preset's engine where it has the algorithm.
     ``table2_tolerances``: Table 2 within these steps too, beside every tolerance of the spec (the
@@ -175,6 +207,9 @@ def compare(specs: Sequence[str], *, tasks: Optional[Sequence[str]] = None,
     run summaries (:mod:`asap_dsl.runsummary`) copied into the runs before the sweep plans (read
     back, not trained) and written there as each run finishes, with its policy's recorded example
     actions for the run the report draws its examples from: a sweep that outlives its machine.
+    ``lookahead``: Table 1 also shows the first reward's and algorithm's policies refined by a
+    look-ahead holding actions up to this many steps (:class:`.controllers.LookaheadController`;
+    0: not).
 
     Holds ``out``'s exclusive lock throughout (a second compare on it is refused, naming the
     first). Runs that cannot be used (failed, damaged) are left out of the tables, named in the
@@ -184,8 +219,10 @@ def compare(specs: Sequence[str], *, tasks: Optional[Sequence[str]] = None,
     :class:`asap_dsl.runs.RunError` for an ``out`` that cannot be used.
     """
     start = time.perf_counter()
-    if table2_tolerances:
-        check_tolerances(plan(specs, tasks, list(rewards), list(algos), 1, preset, steps, engine), table2_tolerances)
+    if table2_tolerances or lookahead:
+        jobs = plan(specs, tasks, list(rewards), list(algos), 1, preset, steps, engine)
+        check_tolerances(jobs, table2_tolerances)
+        check_lookahead(jobs, lookahead)
     out_dir = Path(out).expanduser().resolve()
     if out_dir.exists() and not out_dir.is_dir():
         raise RunError(f"--out {shown(out_dir)} is a file; compare writes a directory (its report and runs)")
@@ -199,7 +236,8 @@ def compare(specs: Sequence[str], *, tasks: Optional[Sequence[str]] = None,
         try:
             return _compare(specs, tasks, rewards, algos, seeds, steps, preset, workers, ray, out_dir, episodes,
                             on_event, oracle_workers, ray_timeout, start, phase, results, engine,
-                            sorted({int(T) for T in table2_tolerances}, reverse=True), on_oracle, summaries)
+                            sorted({int(T) for T in table2_tolerances}, reverse=True), on_oracle, summaries,
+                            int(lookahead))
         except KeyboardInterrupt:
             raise SweepInterrupted(results, phase[0]) from None
         except SweepInterrupted as err:
@@ -266,6 +304,21 @@ def check_tolerances(jobs: Sequence[Job], tolerances: Sequence[int]) -> None:
                                  f"({deadline} steps: its episodes end there)")
 
 
+def check_lookahead(jobs: Sequence[Job], hold: int) -> None:
+    """``ValueError`` (one sentence) for a look-ahead that holds an action longer than the deadline
+    of one of the sweep's tasks (checked before anything trains)."""
+    import asap_dsl
+
+    if int(hold) < 0:
+        raise ValueError(f"the look-ahead holds an action for 0 (none) or more steps, got {hold}")
+    progs: dict = {}
+    for job in jobs:
+        deadline = progs.setdefault(job.spec, asap_dsl.load(job.spec)).task(job.task).model.deadline
+        if int(hold) > deadline:
+            raise ValueError(f"--lookahead {hold} is beyond the deadline of {Path(job.spec).stem} {job.task} "
+                             f"({deadline} steps: an action is held for at most that)")
+
+
 def column_labels(specs: Sequence[str]) -> dict[str, str]:
     """A name per spec for the report's columns: its path's shortest suffix (without ``.asap``)
     that no other spec of the sweep ends with (``a/di`` and ``b/di`` for two ``di.asap``)."""
@@ -281,7 +334,8 @@ def column_labels(specs: Sequence[str]) -> dict[str, str]:
 
 def _compare(specs, tasks, rewards, algos, seeds, steps, preset, workers, ray, out_dir: Path, episodes, on_event,
              oracle_workers, ray_timeout, start, phase: list, results: list, engine=None,
-             table2_tolerances: Sequence[int] = (), on_oracle=None, summaries: Optional[str] = None) -> CompareResult:
+             table2_tolerances: Sequence[int] = (), on_oracle=None, summaries: Optional[str] = None,
+             lookahead: int = 0) -> CompareResult:
     import asap_dsl
 
     jobs = plan(specs, tasks, list(rewards), list(algos), seeds, preset, steps, engine)
@@ -317,6 +371,9 @@ def _compare(specs, tasks, rewards, algos, seeds, steps, preset, workers, ray, o
     columns: list[Column] = []
     table1 = {r: Method(f"{r}/{algos[0]}", f"{REWARD_NAMES.get(r, r)} ({algos[0]})", "rl") for r in rewards}
     table2 = {a: Method(f"{rewards[0]}/{a}", f"{REWARD_NAMES.get(rewards[0], rewards[0])} ({a})", "rl") for a in algos}
+    first_label = f"{REWARD_NAMES.get(rewards[0], rewards[0])} ({algos[0]})"
+    refined = Method(f"{rewards[0]}/{algos[0]}+lookahead", f"{first_label} + look-ahead {lookahead}",
+                     "lookahead")
     greedy = Method("greedy", "greedy look-ahead", "greedy")
     replay = Method("oracle-replay", "oracle, replayed", "oracle")
     examples, curves = {}, {}
@@ -368,6 +425,15 @@ def _compare(specs, tasks, rewards, algos, seeds, steps, preset, workers, ray, o
                 continue
             if j["algo"] == algos[0] and j["reward"] in table1:
                 table1[j["reward"]].evaluations.setdefault(col.name, []).append(ev)
+            if lookahead and j["algo"] == algos[0] and j["reward"] == rewards[0]:
+                why = lookahead_problem(prog, job.task)
+                if why is not None:
+                    if f"{col.name}: no look-ahead row ({why})" not in notes:
+                        notes.append(f"{col.name}: no look-ahead row ({why})")
+                else:
+                    better = _lookahead_evaluation(r, prog, job.task, states, oracle, lookahead, out_dir / "methods")
+                    if better is not None:
+                        refined.evaluations.setdefault(col.name, []).append(better)
             if j["reward"] == rewards[0] and j["algo"] in table2:
                 table2[j["algo"]].evaluations.setdefault(col.name, []).append(ev)
             curves.setdefault(col.name, []).append((f"{REWARD_NAMES.get(j['reward'], j['reward'])} ({j['algo']})",
@@ -380,7 +446,7 @@ def _compare(specs, tasks, rewards, algos, seeds, steps, preset, workers, ray, o
                 break
 
     replay.label = f"{references(columns)}, replayed"
-    t1 = list(table1.values()) + [greedy]
+    t1 = list(table1.values()) + ([refined] if refined.evaluations else []) + [greedy]
     t2 = list(table2.values()) if len(algos) > 1 else []
     runs = [{"label": f"{labels[r['job']['spec']]} {r['job']['task']} {r['job']['algo']} {r['job']['reward']}",
              "spec_hash": r["manifest"]["spec_hash"], "seed": r["job"]["seed"], "preset": r["job"]["preset"],

@@ -70,7 +70,7 @@ class Method:
 
     key: str
     label: str
-    kind: str                                  # "rl" | "greedy" | "oracle"
+    kind: str                                  # "rl" | "lookahead" | "greedy" | "oracle"
     evaluations: dict[str, list[dict]] = field(default_factory=dict)  # column name -> evaluation dicts
 
     def cell(self, col: str, T: int) -> Optional[dict]:
@@ -109,6 +109,21 @@ class ReportData:
     seconds: float = 0.0
 
 
+#: Rows never in bold: the oracle's replay, and the policies refined at run time by the look-ahead
+#: (what the simulator adds to a policy, not what a reward or algorithm trained).
+UNRANKED = ("oracle", "lookahead")
+
+
+def lookahead_caption(data: ReportData) -> Optional[str]:
+    """What Table 1's look-ahead row is, where it has one."""
+    if not any(m.kind == "lookahead" for m in data.table1):
+        return None
+    return ("The look-ahead row is the first row's policies refined on the spec's simulator at run time "
+            "(`asapc eval --lookahead N`: candidate actions held for up to N steps, the policy after them, the "
+            "soonest reach taken; never later than the policy): what the simulator adds to a trained policy, "
+            "not a trained policy, so never in bold.")
+
+
 def _pct(x: Optional[float]) -> str:
     return percent(x, sign="")  # the table's header says %
 
@@ -125,7 +140,7 @@ def _cell_text(c: Optional[dict], bold: bool, md: bool) -> str:
 def _best(methods: list[Method], col: str, T: int) -> Optional[float]:
     """The best mean of a column at ``T`` (the oracle's replay aside), or None where there is no
     real best: a single method, every method tied, or the best at 0 (bold would mark nothing)."""
-    vals = [c["mean"] for m in methods if m.kind != "oracle" for c in [m.cell(col, T)] if c is not None]
+    vals = [c["mean"] for m in methods if m.kind not in UNRANKED for c in [m.cell(col, T)] if c is not None]
     if len(vals) < 2 or max(vals) <= 0 or max(vals) - min(vals) <= 1e-12:
         return None
     return max(vals)
@@ -164,7 +179,7 @@ def table_rows(methods: list[Method], columns: list[Column], md: bool, extra: Se
             for col in columns:
                 c = m.cell(col.name, T) if shown[col.name] else None
                 best = _best(methods, col.name, T)
-                row.append(_cell_text(c, c is not None and best is not None and c["mean"] >= best - 1e-12 and m.kind != "oracle", md))
+                row.append(_cell_text(c, c is not None and best is not None and c["mean"] >= best - 1e-12 and m.kind not in UNRANKED, md))
             rows.append(row)
         ceil = [str(T), label]
         for col in columns:
@@ -262,6 +277,8 @@ def markdown(data: ReportData, plot_dir: str = "plots") -> str:
              "Success rate (%) on the seeded evaluation states (seed 2024): mean ± standard deviation over seeds, "
              "[95% Wilson interval of the pooled successes]; the best per column in bold (none where all tie). Ceiling: " + _bounds(cols) + ".",
              "", "## Table 1 — rewards", "", _md_table(header, table_rows(data.table1, cols, md=True)), ""]
+    if lookahead_caption(data):
+        lines += [lookahead_caption(data), ""]
     if data.table2:
         note = table2_caption(data)
         lines += ["## Table 2 — algorithms", ""] + ([note, ""] if note else []) + \
@@ -330,6 +347,8 @@ def html_page(data: ReportData) -> str:
             + html.escape(_bounds(cols)) + ".</p>",
             "<h2>Table 1 — rewards</h2>",
             _html_table(header, _escape_rows(table_rows(data.table1, cols, md=False), 2), "table1", ceiling_label(cols))]
+    if lookahead_caption(data):
+        body += [f'<p class="caption">{html.escape(lookahead_caption(data).replace("`", ""))}</p>']
     if data.table2:
         note = table2_caption(data)
         body += ["<h2>Table 2 — algorithms</h2>"]
