@@ -138,7 +138,7 @@ class _Prefix:
             return self.base.act(obs, states, t)
         a = self.prefix[t]
         free = np.isnan(a).any(axis=1)
-        if free.any():
+        if free.any():  # on every row: a jitted policy compiles once per batch shape (a subset was slower)
             a = a.copy()
             a[free] = np.asarray(self.base.act(obs, states, t), dtype=np.float64)[free]
         return a
