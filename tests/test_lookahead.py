@@ -111,3 +111,11 @@ def test_compare_lookahead_adds_the_refined_row_to_table_1(tiny, tmp_path):
     for T in ("20", "10", "5"):  # the same states: never below the policy it refines
         assert rows[(T, "ASAP-Phi (sac) + look-ahead 3")] >= rows[(T, "ASAP-Phi (sac)")], T
     assert any(p.name.endswith("-lookahead3-n40.json") for p in (out / "methods").iterdir())
+
+
+def test_eval_lookahead_on_a_task_with_history_is_one_sentence(tmp_path, capsys):
+    run = tmp_path / "park"
+    asap_dsl.train(ROOT / "examples" / "double_integrator.asap", steps=64, n_envs=2, out=run, settings=FAST,
+                   evaluate=False, engine="sb3")
+    code, out, err = asapc(capsys, "eval", run, "--episodes", "4", "--lookahead", "2", "--no-oracle")
+    assert code == 2 and "the look-ahead needs `asap` and `avoid` without temporal operators" in one_line_error(err)
