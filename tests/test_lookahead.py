@@ -119,3 +119,15 @@ def test_eval_lookahead_on_a_task_with_history_is_one_sentence(tmp_path, capsys)
                    evaluate=False, engine="sb3")
     code, out, err = asapc(capsys, "eval", run, "--episodes", "4", "--lookahead", "2", "--no-oracle")
     assert code == 2 and "the look-ahead needs `asap` and `avoid` without temporal operators" in one_line_error(err)
+
+
+def test_compare_lookahead_on_a_task_with_history_says_why_it_has_no_row(tmp_path):
+    out = tmp_path / "report"
+    cmd = [sys.executable, "-m", "asap_dsl.cli", "compare", str(ROOT / "examples" / "double_integrator.asap"),
+           "--out", str(out), "--rewards", "asap", "--seeds", "1", "--steps", "300", "--episodes", "10",
+           "--workers", "1", "--engine", "sb3", "--quiet", "--lookahead", "2"]
+    r = subprocess.run(cmd, capture_output=True, text=True, timeout=600)
+    assert r.returncode == 0, r.stderr
+    md = (out / "report.md").read_text()
+    assert "+ look-ahead 2" not in md and "The look-ahead row" not in md
+    assert "no look-ahead row (task park: the look-ahead needs `asap` and `avoid` without temporal operators" in md

@@ -416,6 +416,10 @@ def _compare(specs, tasks, rewards, algos, seeds, steps, preset, workers, ray, o
                         notes.append(f"{col.name}: the oracle's action sequences, replayed by the rollout, succeed "
                                      f"on {row['count']} states within {row['tolerance']} where the oracle reports {want}")
         mine = [r for r in loaded if (r["job"]["spec"], r["job"]["task"]) == key]
+        why = lookahead_problem(prog, job.task) if lookahead else None
+        if why is not None:
+            notes.append(f"{col.name}: no look-ahead row ({why})")
+        refine = bool(lookahead) and why is None
         for r in sorted(mine, key=lambda r: r["job"]["seed"]):
             j = r["job"]
             try:
@@ -425,15 +429,10 @@ def _compare(specs, tasks, rewards, algos, seeds, steps, preset, workers, ray, o
                 continue
             if j["algo"] == algos[0] and j["reward"] in table1:
                 table1[j["reward"]].evaluations.setdefault(col.name, []).append(ev)
-            if lookahead and j["algo"] == algos[0] and j["reward"] == rewards[0]:
-                why = lookahead_problem(prog, job.task)
-                if why is not None:
-                    if f"{col.name}: no look-ahead row ({why})" not in notes:
-                        notes.append(f"{col.name}: no look-ahead row ({why})")
-                else:
-                    better = _lookahead_evaluation(r, prog, job.task, states, oracle, lookahead, out_dir / "methods")
-                    if better is not None:
-                        refined.evaluations.setdefault(col.name, []).append(better)
+            if refine and j["algo"] == algos[0] and j["reward"] == rewards[0]:
+                better = _lookahead_evaluation(r, prog, job.task, states, oracle, lookahead, out_dir / "methods")
+                if better is not None:
+                    refined.evaluations.setdefault(col.name, []).append(better)
             if j["reward"] == rewards[0] and j["algo"] in table2:
                 table2[j["algo"]].evaluations.setdefault(col.name, []).append(ev)
             curves.setdefault(col.name, []).append((f"{REWARD_NAMES.get(j['reward'], j['reward'])} ({j['algo']})",
