@@ -40,32 +40,22 @@ class CompareResult:
     failed: list = field(default_factory=list)  # the runs that could not be used: run, run_dir, error
 
 
-def _baseline(prog, task: str, kind: str, states: np.ndarray, oracle, cache: Path) -> Optional[dict]:
-    """The greedy controller's or the oracle replay's evaluation on the seeded states (cached)."""
-    from .controllers import GreedyController, OracleController
+def _cached_evaluation(path: Path, prog, task: str, states: np.ndarray, oracle, label: str,
+                       controller: Callable[[], object]) -> Optional[dict]:
+    """A controller's evaluation on the seeded states, read from ``path`` where it was cached,
+    else rolled out (``controller()`` builds it; None: nothing to evaluate) and cached there."""
     from ..rl.evaluation import summarise
 
-    name = f"{spec_hash(prog.source)[:16]}-{task}-{kind}-n{len(states)}"
-    if kind == "oracle" and oracle is not None:  # a re-planned or re-solved ceiling is replayed again
-        name += "-" + hashlib.sha256(json.dumps(oracle.data.get("states"), default=str).encode()).hexdigest()[:8]
-    path = cache / f"{name}.json"
     if path.is_file():
         try:
             return json.loads(path.read_text(encoding="utf-8"))
         except ValueError:
             pass
-    if kind == "oracle":
-        if oracle is None:
-            return None
-        ctrl = OracleController.from_cache(oracle, prog.system.n_action)
-    else:
-        try:
-            ctrl = GreedyController(prog, task, budget=25 if prog.system.kind == "simulator" else 125)
-        except ValueError:
-            return None
+    ctrl = controller()
+    if ctrl is None:
+        return None
     start = time.perf_counter()
     res = Evaluator(prog, task, states).run(ctrl)
-    label = "greedy one-step look-ahead" if kind == "greedy" else "oracle action sequences, replayed"
     ev = summarise(res, method=label, prog=prog, task=task, seed=EVAL_SEED,
                    tolerances=list(prog.task(task).model.tolerances), oracle=oracle,
                    seconds=time.perf_counter() - start).to_dict()
@@ -73,35 +63,43 @@ def _baseline(prog, task: str, kind: str, states: np.ndarray, oracle, cache: Pat
     return ev
 
 
+def _baseline(prog, task: str, kind: str, states: np.ndarray, oracle, cache: Path) -> Optional[dict]:
+    """The greedy controller's or the oracle replay's evaluation on the seeded states (cached)."""
+    from .controllers import GreedyController, OracleController
+
+    name = f"{spec_hash(prog.source)[:16]}-{task}-{kind}-n{len(states)}"
+    if kind == "oracle" and oracle is not None:  # a re-planned or re-solved ceiling is replayed again
+        name += "-" + hashlib.sha256(json.dumps(oracle.data.get("states"), default=str).encode()).hexdigest()[:8]
+
+    def controller():
+        if kind == "oracle":
+            return None if oracle is None else OracleController.from_cache(oracle, prog.system.n_action)
+        try:
+            return GreedyController(prog, task, budget=25 if prog.system.kind == "simulator" else 125)
+        except ValueError:
+            return None
+
+    label = "greedy one-step look-ahead" if kind == "greedy" else "oracle action sequences, replayed"
+    return _cached_evaluation(cache / f"{name}.json", prog, task, states, oracle, label, controller)
+
+
 def _lookahead_evaluation(result: dict, prog, task: str, states: np.ndarray, oracle, hold: int,
                           cache: Path) -> Optional[dict]:
     """The run's policy refined by the look-ahead (:class:`.controllers.LookaheadController`) on
-    the sweep's states, cached beside the baselines under the model's hash; None for a summary
-    without its model."""
-    from ..rl.evaluation import load_run, summarise
+    the sweep's states, cached beside the baselines under the model's hash (the model is loaded
+    only when it is not cached); None for a summary without its model."""
+    from ..rl.evaluation import load_run
     from .controllers import LookaheadController
 
     if not result.get("model", True):
         return None
-    loaded = load_run(result["run_dir"])
-    model = (loaded.manifest.get("model") or {}).get("sha256", "")
+    model = (result["manifest"].get("model") or {}).get("sha256", "")
     name = f"{Path(result['run_dir']).name}-{str(model)[:16]}-lookahead{hold}-n{len(states)}"
-    path = cache / f"{name}.json"
-    if path.is_file():
-        try:
-            return json.loads(path.read_text(encoding="utf-8"))
-        except ValueError:
-            pass
-    ctrl = LookaheadController(prog, loaded.controller(), task, hold=hold)
-    start = time.perf_counter()
-    res = Evaluator(prog, task, states).run(ctrl)
-    cfg = loaded.config
-    ev = summarise(res, method=f"{cfg.algo} ({cfg.reward} reward, seed {cfg.seed}), look-ahead {hold}", prog=prog,
-                   task=task, seed=EVAL_SEED, tolerances=list(prog.task(task).model.tolerances), oracle=oracle,
-                   seconds=time.perf_counter() - start).to_dict()
-    ev = json.loads(json.dumps(json_safe(ev)))
-    atomic_write_json(path, ev)
-    return ev
+    job = result["job"]
+    label = f"{job['algo']} ({job['reward']} reward, seed {job['seed']}), look-ahead {hold}"
+    return _cached_evaluation(cache / f"{name}.json", prog, task, states, oracle, label,
+                              lambda: LookaheadController(prog, load_run(result["run_dir"]).controller(), task,
+                                                          hold=hold))
 
 
 def _run_evaluation(result: dict, episodes: int, oracle) -> dict:
