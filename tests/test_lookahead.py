@@ -61,6 +61,30 @@ def test_the_lookahead_in_chunks_chooses_as_in_one_batch(motor):
     assert np.array_equal(ev.run(chunked).t_reach, whole.t_reach)
 
 
+def test_the_rollouts_stop_at_the_reach_they_must_beat(motor):
+    prog, ev = motor
+    c = LookaheadController(prog, Sluggish(), "reach_avoid", hold=3, max_batch=4 * 83)  # 4 states a group
+    c.due = np.array([np.inf, 3, 7, 7, 2, np.inf, 12, 7, 7, 7, 40])
+    groups = c._groups(t=2)
+    seen = np.concatenate([idx for idx, _ in groups])
+    assert sorted(seen) == [0, 1, 2, 3, 5, 6, 7, 8, 9, 10]  # state 4 reached at step 2: decided
+    for idx, steps in groups:
+        assert len(idx) <= 4 and 1 <= steps <= 28
+        due = c.due[idx]
+        assert steps == (28 if np.isinf(due).any() else min(28, int(due.max()) - 2))  # the latest reach, or the deadline
+    c.due[:] = 5
+    assert c._groups(t=5) == []  # every choice has reached: no rollout at all
+
+
+@pytest.mark.parametrize("step_rows", [0, 10**9])
+def test_how_states_are_grouped_does_not_change_a_choice(motor, step_rows):
+    prog, ev = motor
+    reference = ev.run(LookaheadController(prog, Sluggish(), "reach_avoid", hold=5))
+    grouped = LookaheadController(prog, Sluggish(), "reach_avoid", hold=5)
+    grouped.STEP_ROWS = step_rows  # 0: every reach its own rollout; huge: one rollout for all
+    assert np.array_equal(ev.run(grouped).t_reach, reference.t_reach)
+
+
 def test_a_task_with_history_or_time_is_refused_in_one_sentence():
     prog = asap_dsl.load(ROOT / "examples" / "double_integrator.asap")  # `historically` in asap, observes time
     why = lookahead_problem(prog, "park")
