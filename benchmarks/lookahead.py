@@ -4,7 +4,8 @@ The peer is what one writes from Bertsekas' description: at every step, every st
 rolled out with the policy after them to the deadline. Ours rolls each state's candidates only as
 far as the reach they must beat, groups states of like reach, and skips states already decided.
 Both refine the same policy on the same evaluation states (seed 2024); the script checks that they
-reach at the same step from every state, and prints seconds and the ratio.
+reach at the same step from every state, and prints seconds and the ratio: PASS when the reach is the
+same everywhere and ours is not slower.
 
     .venv/bin/python benchmarks/lookahead.py                        # a DC motor policy trained here (about a minute)
     .venv/bin/python benchmarks/lookahead.py --run RUN --states 1000  # a trained run, e.g. attitude's
@@ -59,12 +60,14 @@ def main() -> int:
         reach[name] = ev.run(c).t_reach
         seconds[name] = time.perf_counter() - start
     policy = ev.run(loaded.controller()).t_reach
+    same = np.array_equal(reach["textbook"], reach["ours"])
     print(f"look-ahead (holds up to {args.hold}), {Path(prog.file).name} {task}, {args.states} states: textbook "
           f"{seconds['textbook']:.1f} s, ours {seconds['ours']:.1f} s: {seconds['textbook'] / seconds['ours']:.2f}x; "
-          f"same reach from every state: {np.array_equal(reach['textbook'], reach['ours'])}; "
-          f"sooner than the policy from {int(np.sum(reach['ours'] < policy))} states, later from "
-          f"{int(np.sum(reach['ours'] > policy))}")
-    return 0
+          f"same reach from every state: {same}; sooner than the policy from {int(np.sum(reach['ours'] < policy))} "
+          f"states, later from {int(np.sum(reach['ours'] > policy))}")
+    ok = same and seconds["ours"] <= seconds["textbook"]
+    print(f"bar (the same choices, not slower): {'PASS' if ok else 'FAIL'}")
+    return 0 if ok else 1
 
 
 if __name__ == "__main__":
