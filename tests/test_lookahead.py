@@ -85,6 +85,33 @@ def test_how_states_are_grouped_does_not_change_a_choice(motor, step_rows):
     assert np.array_equal(ev.run(grouped).t_reach, reference.t_reach)
 
 
+def test_the_lookahead_tells_its_progress_and_eval_shows_it_on_a_terminal(motor):
+    import io
+
+    from asap_dsl.cli.eval import _Refining
+
+    prog, ev = motor
+    seen = []
+    result = ev.run(LookaheadController(prog, Sluggish(), "reach_avoid", hold=3, progress=lambda *a: seen.append(a)))
+    assert [s for s, _, _ in seen] == list(range(1, 31)) and all(d == 30 for _, d, _ in seen)
+    reached = [r for _, _, r in seen]
+    assert reached == sorted(reached) and reached[-1] == int(np.isfinite(result.t_reach).sum())
+
+    class Terminal(io.StringIO):
+        def isatty(self):
+            return True
+
+    screen = Terminal()
+    line = _Refining(screen, 48)
+    line(12, 30, 20)
+    assert "step 12/30, 20/48 states reached" in screen.getvalue()
+    line(30, 30, 40)
+    assert screen.getvalue().endswith("\r")  # cleared when the rollout ends
+    quiet = io.StringIO()
+    _Refining(quiet, 48)(12, 30, 20)
+    assert quiet.getvalue() == ""  # nothing in a pipe or a log
+
+
 def test_a_task_with_history_or_time_is_refused_in_one_sentence():
     prog = asap_dsl.load(ROOT / "examples" / "double_integrator.asap")  # `historically` in asap, observes time
     why = lookahead_problem(prog, "park")

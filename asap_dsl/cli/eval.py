@@ -50,6 +50,29 @@ def fill_eval_subparser(subparsers) -> argparse.ArgumentParser:
     return p
 
 
+class _Refining:
+    """The look-ahead's step and the states it has brought in, on one line of a terminal (nothing
+    elsewhere): on a long manoeuvre or a black box it runs for minutes."""
+
+    def __init__(self, stream: TextIO, states: int):
+        self.stream, self.states, self.shown = stream, states, False
+        self.live = hasattr(stream, "isatty") and stream.isatty()
+
+    def __call__(self, step: int, deadline: int, reached: int) -> None:
+        if self.live:
+            self.stream.write(f"\r  look-ahead: step {step}/{deadline}, {reached:,}/{self.states:,} states reached   ")
+            self.stream.flush()
+            self.shown = True
+            if step >= deadline:  # the rollout is over: the line goes before the oracle's (if any)
+                self.close()
+
+    def close(self) -> None:
+        if self.shown:
+            self.stream.write("\r" + " " * 79 + "\r")
+            self.stream.flush()
+            self.shown = False
+
+
 def eval_command(args: argparse.Namespace, out: Optional[TextIO] = None, err: Optional[TextIO] = None) -> int:
     """Evaluate the run (the oracle's ceiling computed unless cached or ``--no-oracle``) and print
     the table or the JSON on ``out`` (standard output by default); while the oracle computes, its
@@ -62,6 +85,7 @@ def eval_command(args: argparse.Namespace, out: Optional[TextIO] = None, err: Op
     out, err = out or sys.stdout, err or sys.stderr
     n_workers = workers(args)
     progress = _Progress(err, "ceiling", args.episodes)
+    refining = _Refining(err, args.episodes)
 
     def started() -> None:  # a line on any stream (a log too), then the live count on a terminal
         err.write(f"computing the oracle's ceiling on {args.episodes:,} states (not cached; --no-oracle skips it) ...\n")
@@ -72,9 +96,10 @@ def eval_command(args: argparse.Namespace, out: Optional[TextIO] = None, err: Op
         try:
             ev = evaluate(args.run, episodes=args.episodes, tolerances=args.tolerances, seed=args.seed, spec=args.spec,
                           oracle="cache" if args.no_oracle else "auto", workers=n_workers, progress=progress,
-                          started=started, lookahead=args.lookahead)
+                          started=started, lookahead=args.lookahead, refining=refining)
         finally:
             progress.close()
+            refining.close()
     except RunWriteError as e:  # evaluated, but eval.json could not be stored: shown, then said
         if getattr(e, "evaluation", None) is not None:
             out.write(e.evaluation.render() + "\n")

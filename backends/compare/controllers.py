@@ -17,7 +17,7 @@
 from __future__ import annotations
 
 import itertools
-from typing import Optional, Sequence
+from typing import Callable, Optional, Sequence
 
 import numpy as np
 
@@ -188,7 +188,7 @@ class LookaheadController:
     """
 
     def __init__(self, program, base, task: Optional[str] = None, hold: int = 8, budget: int = 27,
-                 max_batch: Optional[int] = None):
+                 max_batch: Optional[int] = None, progress: Optional[Callable[[int, int, int], None]] = None):
         problem = lookahead_problem(program, task)
         if problem is not None:
             raise ValueError(problem)
@@ -217,6 +217,7 @@ class LookaheadController:
         self.plan = np.empty((0, H, m))
         self.due = np.empty(0)  # per state, the step its chosen candidate reaches asap (inf: none does)
         self.refined = 0  # steps where a candidate beat the base's own action
+        self.progress = progress  # told (steps done, deadline, states whose choice has reached) after each step
 
     def _evaluator(self, rows: int, like: np.ndarray):
         from asap_dsl.rollout import Evaluator
@@ -241,6 +242,8 @@ class LookaheadController:
         out = own.copy()
         for idx, steps in self._groups(t):
             out[idx] = self._refine(states[idx], own[idx], idx, t, steps)
+        if self.progress is not None:
+            self.progress(t + 1, self.deadline, int(np.count_nonzero(self.due <= t + 1)))
         return out
 
     #: A rolled-out step's fixed cost (the policy's call, the simulator's, Python's), in rows:

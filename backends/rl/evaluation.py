@@ -231,7 +231,8 @@ def evaluate(run: Union[str, Path, RunDir], *, episodes: int = 1000, tolerances:
              seed: int = EVAL_SEED, spec: Union[str, Path, None] = None, oracle: str = "auto",
              workers: Optional[int] = None, write: Optional[bool] = None,
              progress: Optional[Callable[[int], None]] = None,
-             started: Optional[Callable[[], None]] = None, lookahead: int = 0) -> Evaluation:
+             started: Optional[Callable[[], None]] = None, lookahead: int = 0,
+             refining: Optional[Callable[[int, int, int], None]] = None) -> Evaluation:
     """Evaluate a run's best model, acting deterministically, on ``episodes`` seeded initial states.
 
     :param run: the run directory (written by :func:`asap_dsl.backends.rl.training.train`).
@@ -254,6 +255,8 @@ def evaluate(run: Union[str, Path, RunDir], *, episodes: int = 1000, tolerances:
         candidate actions held for up to N steps, the policy after them
         (:class:`~asap_dsl.backends.compare.LookaheadController`; never written to ``eval.json``,
         which is the policy's own evaluation).
+    :param refining: with ``lookahead``, told after each step ``refining(step, deadline, reached)``:
+        the states whose refined choice has reached ``asap`` by then.
     :return: success rates with their intervals and ceilings, steps to reach, failures, ASAP gap.
     :raises asap_dsl.runs.RunError: the run cannot be evaluated (one sentence); a failed write of
         ``eval.json`` is :class:`~asap_dsl.runs.RunWriteError` with the evaluation as ``.evaluation``.
@@ -270,7 +273,7 @@ def evaluate(run: Union[str, Path, RunDir], *, episodes: int = 1000, tolerances:
     run_dir.acquire(exclusive=False)  # held until eval.json is written: nobody retrains it meanwhile
     try:
         return _evaluate(load_run(run_dir, spec), episodes, tolerances, seed, oracle, workers, write, progress, started,
-                         lookahead)
+                         lookahead, refining)
     finally:
         if owned:
             run_dir.release()
@@ -278,7 +281,7 @@ def evaluate(run: Union[str, Path, RunDir], *, episodes: int = 1000, tolerances:
 
 def _evaluate(loaded: LoadedRun, episodes: int, tolerances: Optional[Sequence[int]], seed: int, oracle: str,
               workers: Optional[int], write: Optional[bool], progress=None, started=None,
-              lookahead: int = 0) -> Evaluation:
+              lookahead: int = 0, refining=None) -> Evaluation:
     prog, cfg = loaded.program, loaded.config
     task = prog.task(cfg.task).model
     tols = list(tolerances) if tolerances else list(task.tolerances)
@@ -291,7 +294,8 @@ def _evaluate(loaded: LoadedRun, episodes: int, tolerances: Optional[Sequence[in
     if lookahead:
         from ..compare.controllers import LookaheadController
 
-        controller = LookaheadController(prog, controller, cfg.task, hold=int(lookahead))  # ValueError: why not
+        controller = LookaheadController(prog, controller, cfg.task, hold=int(lookahead),  # ValueError: why not
+                                         progress=refining)
         method += f", refined by a look-ahead holding actions up to {int(lookahead)} steps"
         write = False  # eval.json is the policy's own evaluation
     start = time.perf_counter()
