@@ -172,8 +172,8 @@ class LookaheadController:
     the action box (at most ``budget`` points, corners included: the bang-bang actions of
     minimum-time control) held for 1, 2, 3, 5, ... up to ``hold`` steps (:func:`hold_ladder`);
     and what is left of the candidate chosen at the step before. Each is rolled out with the
-    base after it to the deadline, on the rules of every evaluation (:class:`asap_dsl.rollout.
-    Evaluator`), and the one that reaches ``asap`` soonest gives the action (the base's own on
+    base after it as far as it could still win (below), on the rules of every evaluation
+    (:class:`asap_dsl.rollout.Evaluator`), and the one that reaches ``asap`` soonest gives the action (the base's own on
     ties and where none reaches). Because the rest of the chosen candidate is among the next
     step's candidates, the predicted reach never gets later: on deterministic dynamics the
     refined controller reaches no later than ``base`` from any state (``tests/test_lookahead.py``).

@@ -284,36 +284,44 @@ def _oracle(prog, task: str, episodes: int, workers: Optional[int], name: str, o
                       started=lambda: tell(name, 0, episodes))
 
 
+def _deadlines(jobs: Sequence[Job]) -> dict[tuple[str, str], int]:
+    """Each of the sweep's (spec, task) and its deadline, each spec loaded once."""
+    import asap_dsl
+
+    progs: dict = {}
+    out = {}
+    for job in jobs:
+        if job.spec not in progs:
+            progs[job.spec] = asap_dsl.load(job.spec)
+        out[(job.spec, job.task)] = progs[job.spec].task(job.task).model.deadline
+    return out
+
+
 def check_tolerances(jobs: Sequence[Job], tolerances: Sequence[int]) -> None:
     """``ValueError`` (one sentence) for a Table 2 tolerance under 1 step or beyond the deadline of
     one of the sweep's tasks (an episode ends at its deadline: nothing is measured beyond it)."""
-    import asap_dsl
-
     for T in tolerances:
         if int(T) < 1:
             raise ValueError(f"a tolerance is at least 1 step, got {T}")
-    progs: dict = {}
-    for job in jobs:
-        prog = progs.setdefault(job.spec, asap_dsl.load(job.spec))
-        deadline = prog.task(job.task).model.deadline
+    if not tolerances:
+        return
+    for (spec, task), deadline in _deadlines(jobs).items():
         for T in tolerances:
             if int(T) > deadline:
-                raise ValueError(f"tolerance {T} is beyond the deadline of {Path(job.spec).stem} {job.task} "
+                raise ValueError(f"tolerance {T} is beyond the deadline of {Path(spec).stem} {task} "
                                  f"({deadline} steps: its episodes end there)")
 
 
 def check_lookahead(jobs: Sequence[Job], hold: int) -> None:
     """``ValueError`` (one sentence) for a look-ahead that holds an action longer than the deadline
     of one of the sweep's tasks (checked before anything trains)."""
-    import asap_dsl
-
     if int(hold) < 0:
         raise ValueError(f"the look-ahead holds an action for 0 (none) or more steps, got {hold}")
-    progs: dict = {}
-    for job in jobs:
-        deadline = progs.setdefault(job.spec, asap_dsl.load(job.spec)).task(job.task).model.deadline
+    if not hold:
+        return
+    for (spec, task), deadline in _deadlines(jobs).items():
         if int(hold) > deadline:
-            raise ValueError(f"--lookahead {hold} is beyond the deadline of {Path(job.spec).stem} {job.task} "
+            raise ValueError(f"--lookahead {hold} is beyond the deadline of {Path(spec).stem} {task} "
                              f"({deadline} steps: an action is held for at most that)")
 
 

@@ -277,8 +277,9 @@ def markdown(data: ReportData, plot_dir: str = "plots") -> str:
              "Success rate (%) on the seeded evaluation states (seed 2024): mean ± standard deviation over seeds, "
              "[95% Wilson interval of the pooled successes]; the best per column in bold (none where all tie). Ceiling: " + _bounds(cols) + ".",
              "", "## Table 1 — rewards", "", _md_table(header, table_rows(data.table1, cols, md=True)), ""]
-    if lookahead_caption(data):
-        lines += [lookahead_caption(data), ""]
+    caption = lookahead_caption(data)
+    if caption:
+        lines += [caption, ""]
     if data.table2:
         note = table2_caption(data)
         lines += ["## Table 2 — algorithms", ""] + ([note, ""] if note else []) + \
@@ -347,8 +348,9 @@ def html_page(data: ReportData) -> str:
             + html.escape(_bounds(cols)) + ".</p>",
             "<h2>Table 1 — rewards</h2>",
             _html_table(header, _escape_rows(table_rows(data.table1, cols, md=False), 2), "table1", ceiling_label(cols))]
-    if lookahead_caption(data):
-        body += [f'<p class="caption">{html.escape(lookahead_caption(data).replace("`", ""))}</p>']
+    caption = lookahead_caption(data)
+    if caption:
+        body += [f'<p class="caption">{html.escape(caption.replace("`", ""))}</p>']
     if data.table2:
         note = table2_caption(data)
         body += ["<h2>Table 2 — algorithms</h2>"]
