@@ -49,6 +49,13 @@ END_REASONS = (None, "avoid", "out_of_bounds", "non_finite", "time_limit")
 _AVOID, _OOB, _NONFINITE, _TIME = 1, 2, 3, 4
 
 
+def float32_bounds(bounds: np.ndarray) -> np.ndarray:
+    """Bounds as float32, those beyond its range unbounded. (``copysign``, not ``sign * inf``:
+    a bound of 0 would make NaN, and a warning, in the branch ``where`` discards.)"""
+    bounds = np.asarray(bounds, dtype=np.float64)
+    return np.where(np.abs(bounds) > FLOAT32_MAX, np.copysign(np.inf, bounds), bounds).astype(np.float32)
+
+
 def _program(prog_or_path):
     from .program import Program, load
 
@@ -106,16 +113,12 @@ class EnvCore:
         self.kmin, self.kmax = tm.episode
         self.low, self.high = sysm.state_low, sysm.state_high
         self.observe_time = "time" in tm.observe
-        f32max = float(np.finfo(np.float32).max)
-        low32 = np.clip(self.low, -np.inf, np.inf).astype(np.float64)
-        low32 = np.where(np.abs(low32) > f32max, np.sign(low32) * np.inf, low32).astype(np.float32)
-        high32 = np.where(np.abs(self.high) > f32max, np.sign(self.high) * np.inf, self.high).astype(np.float32)
+        low32, high32 = float32_bounds(self.low), float32_bounds(self.high)
         if self.observe_time:
             low32 = np.append(low32, np.float32(0.0))
             high32 = np.append(high32, np.float32(max(1.0, self.kmax / tm.deadline)))
         self.obs_low, self.obs_high = low32, high32
-        f32 = float(np.finfo(np.float32).max)
-        self._clip_lo, self._clip_hi = np.maximum(self.low, -f32), np.minimum(self.high, f32)
+        self._clip_lo, self._clip_hi = np.maximum(self.low, -FLOAT32_MAX), np.minimum(self.high, FLOAT32_MAX)
         self.observation_space = spaces.Box(low32, high32, dtype=np.float32)
         self.action_space = spaces.Box(sysm.action_low.astype(np.float32), sysm.action_high.astype(np.float32),
                                        dtype=np.float32)

@@ -326,3 +326,24 @@ def test_reset_info_is_finite_where_rho_is_infinite():
         venv.reset()
         assert all(np.isfinite(i["rho"]) for i in venv.reset_infos), venv.reset_infos
         assert [i["end_reason"] for i in venv.reset_infos] == [None] * 3 and [i["t"] for i in venv.reset_infos] == [0] * 3
+
+
+def test_bounds_at_zero_and_beyond_float32_make_no_warning():
+    """A state bounded at 0 (a forward-only speed) and one beyond float32's range: the
+    observation space is built without a NumPy warning reaching the user, and is right."""
+    spec = """
+system Rover {
+  state v in [0, 2] init [0, 1]
+  state w in [-1e300, 0] init [-1, 0]
+  action a in [-1, 1]
+  dt = 0.1
+  ode { v' = a
+        w' = a }
+}
+task t { asap v > 1.5  deadline 10 }
+"""
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        env = asap_dsl.make_env(asap_dsl.loads(spec, "zero.asap"), seed=0)
+    assert env.observation_space.low.tolist() == [0.0, -np.inf]
+    assert env.observation_space.high.tolist() == [2.0, 0.0]

@@ -34,6 +34,7 @@ from typing import Any, Optional, Union
 
 import numpy as np
 
+from asap_dsl.env import float32_bounds
 from asap_dsl.runfiles import RunError, atomic_write, shown
 
 __all__ = ["FORMATS", "Network", "PolicyFunction", "export_run", "policy_function", "to_onnx", "to_torchscript"]
@@ -195,9 +196,7 @@ def policy_function(loaded) -> PolicyFunction:
     net = actor_network(model, cfg.engine, cfg.algo)
     observe_time = "time" in task.observe
     n = system.n_state
-    f32 = float(np.finfo(np.float32).max)
-    low = np.where(np.abs(system.state_low) > f32, np.sign(system.state_low) * np.inf, system.state_low)
-    high = np.where(np.abs(system.state_high) > f32, np.sign(system.state_high) * np.inf, system.state_high)
+    low, high = float32_bounds(system.state_low), float32_bounds(system.state_high)
     space = model.action_space
     meta = {
         "format": "asap-dsl policy 1",
@@ -228,7 +227,7 @@ def policy_function(loaded) -> PolicyFunction:
         raise RunError(f"{loaded.model_file}: the policy's layers do not fit the task's {n} states and "
                        f"{system.n_action} actions")
     return PolicyFunction(
-        net=net, obs_low=low.astype(np.float32), obs_high=high.astype(np.float32),
+        net=net, obs_low=low, obs_high=high,
         centre=np.asarray(scaling.obs_centre, np.float32), half=np.asarray(scaling.obs_half, np.float32),
         deadline=int(task.deadline) if observe_time else None,
         time_high=float(np.float32(max(1.0, task.episode[1] / task.deadline))),
