@@ -1,6 +1,7 @@
 """The specs written to test whether the default training generalises (issue 18):
-examples/pendulum_swingup.asap (energy pumping) and examples/puck_detour.asap (a detour round an
-obstacle). Each loads, lints clean, steps finitely, and the oracle's action sequences for two
+examples/pendulum_swingup.asap (energy pumping), examples/puck_detour.asap and
+examples/rover_detour.asap (detours round an obstacle) and examples/planar_quadrotor.asap (an
+under-actuated craft). Each loads, lints clean, steps finitely, and the oracle's action sequences for two
 states, replayed in the training environment from the same start, reach the goal at the step the
 oracle says without touching the obstacle."""
 
@@ -16,10 +17,14 @@ from conftest import ROOT, asapc
 
 PENDULUM = ROOT / "examples" / "pendulum_swingup.asap"
 PUCK = ROOT / "examples" / "puck_detour.asap"
-CASES = [(PENDULUM, "reach"), (PUCK, "reach"), (PUCK, "reach_avoid")]
+ROVER = ROOT / "examples" / "rover_detour.asap"
+QUADROTOR = ROOT / "examples" / "planar_quadrotor.asap"
+SPECS = [PENDULUM, PUCK, ROVER, QUADROTOR]
+CASES = [(PENDULUM, "reach"), (PUCK, "reach"), (PUCK, "reach_avoid"), (ROVER, "reach_avoid"),
+         (QUADROTOR, "reach"), (QUADROTOR, "reach_avoid")]
 
 
-@pytest.mark.parametrize("spec", [PENDULUM, PUCK], ids=lambda p: p.stem)
+@pytest.mark.parametrize("spec", SPECS, ids=lambda p: p.stem)
 def test_lint_is_clean(capsys, spec):
     code, out, _ = asapc(capsys, "lint", str(spec))
     assert code == 0 and "0 errors, 0 warnings" in out
@@ -29,7 +34,8 @@ def test_lint_is_clean(capsys, spec):
 def test_one_step_is_finite(spec, task):
     env = asap_dsl.make_env(spec, task=task, seed=0)
     obs, _ = env.reset()
-    obs, reward, terminated, truncated, info = env.step(env.action_space.sample())
+    middle = (env.action_space.low + env.action_space.high) / 2  # a random brake at the rover's v = 0 would leave its space
+    obs, reward, terminated, truncated, info = env.step(middle)
     assert np.isfinite(obs).all() and np.isfinite(reward) and not terminated and not truncated
     assert info["end_reason"] is None, info
 
@@ -39,6 +45,22 @@ def test_the_torque_cannot_lift_the_pendulum_directly():
     prog = asap_dsl.load(PENDULUM)
     c = prog.system.consts
     assert prog.system.action_high[0] < c["m"] * c["g0"] * c["l"] / 3
+
+
+def test_the_rover_must_go_over_the_crater():
+    """The point of the spec: from every start the straight line to the goal crosses the crater,
+    and below it the crater reaches the edge of the state space, so the only way is over its rim,
+    away from the goal's height."""
+    prog = asap_dsl.load(ROVER)
+    crater, goal = prog.regions["crater"], prog.regions["goal"]
+    c, r = np.array(crater.centre), crater.radius
+    starts = task_states(prog.system, prog.task("reach_avoid").model, 200, seed=0)[:, :2]
+    s = np.linspace(0, 1, 101)[:, None, None]
+    lines = starts[None] + s * (np.array(goal.centre) - starts)[None]  # [point, start, xy]
+    assert (np.linalg.norm(lines - c, axis=-1) < r).any(axis=0).all()
+    assert np.linalg.norm(starts - c, axis=-1).min() > r and np.linalg.norm(np.array(goal.centre) - c) > r + goal.radius
+    y_low = prog.system.state_low[1]
+    assert r ** 2 - (y_low - c[1]) ** 2 > 3.8 ** 2  # the disc covers the bottom edge for |x| < 3.8
 
 
 def _replay(spec, task: str, x0: np.ndarray, actions: np.ndarray):
