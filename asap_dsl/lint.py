@@ -223,11 +223,30 @@ class RegionsOverlap(LintRule):
 
     def check(self, prog, out):
         for t in prog.tasks.values():
-            for g in _goal_regions(prog, t):
-                for name in t.avoid_regions:
-                    if name in prog.regions and regions_overlap(g, prog.regions[name]):
-                        out.add(self.code, f"the asap region '{g.name}' overlaps the avoid region '{name}' in task '{t.name}': "
-                                "the target is partly unsafe", t.clause_spans.get("avoid", t.span))
+            for name in t.avoid_regions:
+                if name not in prog.regions:
+                    continue
+                for g in _regions_meeting(prog, t.asap, prog.regions[name]):
+                    out.add(self.code, f"the asap region '{g}' overlaps the avoid region '{name}' in task '{t.name}': "
+                            "the target is partly unsafe", t.clause_spans.get("avoid", t.span))
+
+
+def _regions_meeting(prog: ProgramModel, asap, avoid: RegionModel) -> list[str]:
+    """The regions `asap` asks to be in that overlap ``avoid``, leaving out each `or` branch that
+    also asks to be in a region disjoint from it (`in hover and in level`, with `level` a box over
+    the attitude only: its target is the intersection, which may lie well away from ``avoid``)."""
+    if asap is None:
+        return []
+    out: dict[str, None] = {}
+    for branch in ir.operands(asap) if isinstance(asap, ir.Or) else [asap]:
+        conjuncts = ir.operands(branch) if isinstance(branch, ir.And) else [branch]
+        if any(isinstance(c, ir.Atom) and c.region in prog.regions
+               and regions_overlap(prog.regions[c.region], avoid) is False for c in conjuncts):
+            continue
+        for r in ir.positive_regions(branch):
+            if r in prog.regions and regions_overlap(prog.regions[r], avoid):
+                out.setdefault(r)
+    return list(out)
 
 
 @rule

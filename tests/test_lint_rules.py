@@ -198,6 +198,16 @@ def test_w201_stays_quiet_for_a_box_obstacle_beside_a_ball_goal():
     assert "W201" not in codes(edit("ball([-1, 0], 0.2)", "box(x in [1.6, 2])"))
 
 
+def test_w201_judges_the_target_of_a_conjunction_not_each_region():
+    """`asap in goal and in slow`: `slow`, a box over y only, meets the unsafe box, but the target
+    is its intersection with the goal, which does not; an `or` branch without the goal still warns."""
+    src = edit("region unsafe = ball([-1, 0], 0.2)", "region unsafe = box(x in [-2, -1])\nregion slow = box(y in [-0.1, 0.1])")
+    assert "W201" not in codes(src.replace("asap in goal", "asap in goal and in slow"))
+    assert "W201" not in codes(src.replace("asap in goal", "asap in slow and x > 0 and in goal"))
+    assert "W201" in codes(src.replace("asap in goal", "asap (in goal and in slow) or in slow"))
+    assert "W201" in codes(src.replace("asap in goal", "asap in slow"))
+
+
 def test_regions_overlap_judges_only_regions_asap_asks_to_be_in():
     # `not in unsafe` asks to be out of it: no overlap warning, however close the regions are
     # (goal and unsafe are apart in BASE: only an asap that asks to be in `unsafe` overlaps it)
