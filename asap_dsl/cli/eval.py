@@ -21,6 +21,7 @@ from ..runs import json_safe
 from ..sampling import EVAL_SEED
 from .args import (InputError, UsageError, add_episodes, add_format, add_seed, add_workers, natural_int,
                    tolerances_list, workers)
+from .oracle import LiveLine, _Progress
 
 __all__ = ["eval_command", "fill_eval_subparser"]
 
@@ -50,27 +51,18 @@ def fill_eval_subparser(subparsers) -> argparse.ArgumentParser:
     return p
 
 
-class _Refining:
+class _Refining(LiveLine):
     """The look-ahead's step and the states it has brought in, on one line of a terminal (nothing
     elsewhere): on a long manoeuvre or a black box it runs for minutes."""
 
     def __init__(self, stream: TextIO, states: int):
-        self.stream, self.states, self.shown = stream, states, False
-        self.live = hasattr(stream, "isatty") and stream.isatty()
+        super().__init__(stream)
+        self.states = states
 
     def __call__(self, step: int, deadline: int, reached: int) -> None:
-        if self.live:
-            self.stream.write(f"\r  look-ahead: step {step}/{deadline}, {reached:,}/{self.states:,} states reached   ")
-            self.stream.flush()
-            self.shown = True
-            if step >= deadline:  # the rollout is over: the line goes before the oracle's (if any)
-                self.close()
-
-    def close(self) -> None:
-        if self.shown:
-            self.stream.write("\r" + " " * 79 + "\r")
-            self.stream.flush()
-            self.shown = False
+        self.show(f"look-ahead: step {step}/{deadline}, {reached:,}/{self.states:,} states reached")
+        if step >= deadline:  # the rollout is over: the line goes before the oracle's (if any)
+            self.close()
 
 
 def eval_command(args: argparse.Namespace, out: Optional[TextIO] = None, err: Optional[TextIO] = None) -> int:
@@ -80,7 +72,6 @@ def eval_command(args: argparse.Namespace, out: Optional[TextIO] = None, err: Op
     from asap_dsl.backends.rl.evaluation import evaluate
     from asap_dsl.runs import RunError, RunWriteError
 
-    from .oracle import _Progress
 
     out, err = out or sys.stdout, err or sys.stderr
     n_workers = workers(args)

@@ -122,13 +122,34 @@ def _render_rates(d: dict, what: str, out: TextIO, column: str = "ceiling") -> N
         out.write("no state reaches the goal\n")
 
 
-class _Progress:
+class LiveLine:
+    """One line rewritten in place on a terminal, cleared by :meth:`close`; nothing on any other
+    stream (a pipe, a log), where a carriage return would only leave debris."""
+
+    def __init__(self, stream: TextIO):
+        self.stream, self.shown = stream, False
+        self.live = hasattr(stream, "isatty") and stream.isatty()
+
+    def show(self, text: str) -> None:
+        if self.live:
+            self.stream.write(f"\r  {text}   ")
+            self.stream.flush()
+            self.shown = True
+
+    def close(self) -> None:
+        if self.shown:
+            self.stream.write("\r" + " " * 79 + "\r")
+            self.stream.flush()
+            self.shown = False
+
+
+class _Progress(LiveLine):
     """States done, rate and time left, on one line of a terminal (nothing elsewhere)."""
 
     def __init__(self, stream: TextIO, task: str, total: int, what: str = "oracle"):
-        self.stream, self.task, self.total, self.done, self.what = stream, task, total, 0, what
+        super().__init__(stream)
+        self.task, self.total, self.done, self.what = task, total, 0, what
         self.start = time.perf_counter()
-        self.live = hasattr(stream, "isatty") and stream.isatty()
 
     def __call__(self, k: int) -> None:
         self.done += k
@@ -138,14 +159,7 @@ class _Progress:
         rate = self.done / spent if spent > 0 else 0.0
         left = (self.total - self.done) / rate if rate > 0 else float("inf")
         eta = "--" if left == float("inf") else f"{int(left // 60)}m{int(left % 60):02d}s"
-        self.stream.write(f"\r  {self.what} {self.task}: {self.done}/{self.total} states, {rate:.2f} states/s, "
-                          f"{eta} left   ")
-        self.stream.flush()
-
-    def close(self) -> None:
-        if self.live and self.done:
-            self.stream.write("\r" + " " * 79 + "\r")
-            self.stream.flush()
+        self.show(f"{self.what} {self.task}: {self.done}/{self.total} states, {rate:.2f} states/s, {eta} left")
 
 
 def oracle_command(args: argparse.Namespace, out: Optional[TextIO] = None, err: Optional[TextIO] = None) -> int:
