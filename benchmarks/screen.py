@@ -55,15 +55,26 @@ from asap_dsl.env import core_of
 from learner_probes import patch_action_search, patch_demo_bc, patch_return_bound, patch_sbx_class
 
 
-def patch_end_at_reach(bonus: float) -> dict:
-    """The learner's episodes end at the first reach, that step earning ``bonus`` (the value of
-    staying, ``r_sat / (1 - gamma)``); a wrapper right above the raw env, below the failed starts,
-    so that the curriculum sees the episode end as reached. Returns the counters."""
+def patch_end_at_reach(r_sat: float, gamma: float) -> dict:
+    """The learner's episodes end at the first reach, that step earning the value of staying,
+    ``r_sat / (1 - gamma)`` under the learner's current discount (the late rule lengthens it:
+    the bonus and the stored bonuses follow); a wrapper right above the raw env, below the failed
+    starts, so that the curriculum sees the episode end as reached. Returns the counters."""
     from stable_baselines3.common.vec_env import VecEnvWrapper
 
     from asap_dsl.backends.rl import curriculum
 
-    stats = {"ended_at_reach": 0}
+    stats = {"ended_at_reach": 0, "bonus": r_sat / (1.0 - gamma)}
+    orig_discount = session_module.Session.set_discount
+
+    def set_discount(self, model, new_gamma: float) -> None:
+        orig_discount(self, model, new_gamma)
+        was, stats["bonus"] = stats["bonus"], r_sat / (1.0 - float(new_gamma))
+        buffer = getattr(model, "replay_buffer", None)
+        if buffer is not None:
+            buffer.rewards[buffer.rewards == np.float32(was)] = np.float32(stats["bonus"])
+
+    session_module.Session.set_discount = set_discount
 
     class EndAtReach(VecEnvWrapper):
         def __init__(self, venv):
@@ -81,7 +92,7 @@ def patch_end_at_reach(bonus: float) -> dict:
             if not newly.any():
                 return obs, reward, done, infos
             reward = np.array(reward, dtype=np.float64)
-            reward[newly] = bonus
+            reward[newly] = stats["bonus"]
             for i in np.flatnonzero(newly & done):  # reached on the last step: terminal, not a time-out
                 infos[i]["TimeLimit.truncated"] = False
             live = newly & ~done
@@ -299,7 +310,7 @@ def main() -> int:
     stats: dict = {}
     more: dict = {}
     if args.end_at_reach:  # the plain default keeps its own step
-        stats = patch_end_at_reach(float(prog.task(args.task).model.r_sat_value) / (1.0 - gamma))
+        stats = patch_end_at_reach(float(prog.task(args.task).model.r_sat_value), gamma)
     if args.failure_times_deadline:
         patch_failure_reward()
     if args.sbx_class:
