@@ -13,6 +13,11 @@ process only, so that an idea can be judged in four minutes before it is built p
 - ``--failure-times-deadline``: a failure step earns the reward's floor times the deadline.
 - ``--end-at-reach``: the learner's episodes end at the first reach, that step earning ``r_sat / (1 - gamma)``
   (:func:`patch_end_at_reach`; the first probe of it left the restarted observations unscaled).
+- ``--discounted-r-sat``: ``r_sat auto`` from the theorem's bound under the learner's discount,
+  ``rho_max' + (gamma^-(k_max - 1) - 1) / (1 - gamma) + 1`` instead of ``rho_max' + k_max + 1``
+  (:func:`patch_discounted_r_sat`). ``--discounted-r-sat-rho``: the same ratio of ``r_sat`` to the
+  robustness's range at the reward's old scale: the robustness shrunk instead, ``r_sat`` as it was;
+  ``--rho-factor F``: the robustness's scale times F (:func:`patch_rho_scale`).
 - ``--failed-starts P`` and ``--demonstrations N``: the training's own settings (the default
   preset's rules, :mod:`asap_dsl.backends.rl.curriculum` and ``.demonstrations``; ``0`` and ``0``
   screen the default as it was before them). They were probes here first: the failed starts, and
@@ -120,6 +125,40 @@ def patch_end_at_reach(r_sat: float, gamma: float) -> dict:
 
     session_module.Session.learner_env = learner_env
     return stats
+
+
+def patch_discounted_r_sat(gamma: float) -> float:
+    """``r_sat auto`` from the theorem's bound with the discount kept in it. The paper's proof
+    bounds the robustness a later arrival can gain by ``(rho_max - rho_min) k_max`` and the value of
+    arriving a step sooner by ``r_sat - rho_max``; with discounting the first is a sum of ``gamma^t``
+    over the steps before the arrival and the second is discounted by ``gamma^t3``, so a reward that
+    prefers the sooner arrival needs ``r_sat > rho_max' + (gamma^-(k_max - 1) - 1) / (1 - gamma)``
+    (scaled units, ``rho_max' - rho_min' = 1``): 203 instead of 31 at gamma 0.9 and k_max 30.
+    Returns the value for a task of ``k_max`` 30 (for the log)."""
+    from asap_dsl import model as model_module
+
+    cls = model_module.TaskModel
+    orig = cls.r_sat_value
+
+    def r_sat_value(self) -> float:
+        if self.r_sat is not None:
+            return orig.fget(self)
+        return orig.fget(self) - (self.k_max + 1) + (gamma ** -(self.k_max - 1) - 1.0) / (1.0 - gamma) + 1.0
+
+    cls.r_sat_value = property(r_sat_value)
+    return (gamma ** -29 - 1.0) / (1.0 - gamma) + 1.0
+
+
+def patch_rho_scale(factor) -> float:
+    """The robustness's scale (and with it the floor) times ``factor(k_max)``, ``r_sat auto``
+    following the scale (``rho_max' + k_max + 1``): the shaping before the goal weighs more (> 1)
+    or less (< 1) against ``r_sat``. Returns the factor for a task of ``k_max`` 30."""
+    from asap_dsl import model as model_module
+
+    cls = model_module.TaskModel
+    orig = cls.rho_scale
+    cls.rho_scale = property(lambda self: orig.fget(self) * factor(self.k_max))
+    return factor(30)
 
 
 def patch_failure_reward() -> None:
@@ -284,6 +323,9 @@ def main() -> int:
     ap.add_argument("--sbx-class", choices=("CrossQ", "TQC"))
     ap.add_argument("--failure-times-deadline", action="store_true")
     ap.add_argument("--end-at-reach", action="store_true")
+    ap.add_argument("--discounted-r-sat", action="store_true")
+    ap.add_argument("--discounted-r-sat-rho", action="store_true")
+    ap.add_argument("--rho-factor", type=float, help="the robustness's scale times F, r_sat auto following it")
     ap.add_argument("--failed-starts", type=float)
     ap.add_argument("--lr-drop", help="AT,FACTOR")
     ap.add_argument("--preset-set", action="append", default=[], metavar="NAME=VALUE")
@@ -313,6 +355,12 @@ def main() -> int:
         stats = patch_end_at_reach(float(prog.task(args.task).model.r_sat_value), gamma)
     if args.failure_times_deadline:
         patch_failure_reward()
+    if args.discounted_r_sat:
+        more["r_sat_above_rho_max"] = patch_discounted_r_sat(gamma)
+    if args.discounted_r_sat_rho:
+        more["rho_scaled_by"] = patch_rho_scale(lambda k: (k + 1) / ((gamma ** -(k - 1) - 1.0) / (1.0 - gamma) + 1.0))
+    if args.rho_factor:
+        more["rho_scaled_by"] = patch_rho_scale(lambda k: args.rho_factor)
     if args.sbx_class:
         patch_sbx_class(args.sbx_class)
     if args.return_bound:
