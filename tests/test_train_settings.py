@@ -292,11 +292,19 @@ def test_eval_takes_the_ceiling_from_a_cached_oracle_on_the_first_states(tiny, t
     code, out, err = asapc(capsys, "eval", trained, "--episodes", "12", "--no-oracle")
     assert code == 0 and "not computed for these 12 states" in out and "--episodes 12` computes it" in out
     assert asapc(capsys, "oracle", tiny, "--episodes", "8", "--workers", "1")[0] == 0
-    code, out, err = asapc(capsys, "eval", trained, "--episodes", "12", "--no-oracle", "--format", "json")
+    code, out, err = asapc(capsys, "eval", trained, "--episodes", "12", "--no-oracle", "--format", "json", "--states")
     ev = json.loads(out)
     assert ev["oracle"]["states"] == 8 and ev["rows"][0]["ceiling"]["states"] == 8  # the 8 cached are the first 12's
+    # the distance below the ceiling is the policy's rate on the same 8 states, not on all 12
+    t_reach = ev["per_state"]["t_reach"]
+    for row in ev["rows"]:
+        on_eight = sum(t is not None and t <= row["tolerance"] for t in t_reach[:8]) / 8
+        assert row["rate_on_ceiling_states"] == pytest.approx(on_eight)
     code, out, err = asapc(capsys, "eval", trained, "--episodes", "12", "--no-oracle")
-    assert "the oracle's on the first 8 of these 12 states" in out
+    assert "the oracle's on the first 8 of these 12 states, and the distance below it" in out
+    row = ev["rows"][0]
+    below = 100 * (row["ceiling"]["rate"] - row["rate_on_ceiling_states"])
+    assert f"{below:.1f} pts" in out.splitlines()[3]
     code, out, err = asapc(capsys, "eval", trained, "--episodes", "5", "--no-oracle", "--format", "json")
     assert json.loads(out)["oracle"]["states"] == 5  # the first 5 of the 8: exact
 
