@@ -127,6 +127,12 @@ def patch_end_at_reach(r_sat: float, gamma: float) -> dict:
     return stats
 
 
+def discounted_bound(gamma: float, k_max: int) -> float:
+    """The theorem's ``r_sat - rho_max'`` with the discount kept in it (scaled units), ``+ 1`` as
+    ``r_sat auto`` adds: ``(gamma^-(k_max - 1) - 1) / (1 - gamma) + 1`` (``k_max`` as gamma -> 1)."""
+    return (gamma ** -(k_max - 1) - 1.0) / (1.0 - gamma) + 1.0
+
+
 def patch_discounted_r_sat(gamma: float) -> float:
     """``r_sat auto`` from the theorem's bound with the discount kept in it. The paper's proof
     bounds the robustness a later arrival can gain by ``(rho_max - rho_min) k_max`` and the value of
@@ -143,10 +149,10 @@ def patch_discounted_r_sat(gamma: float) -> float:
     def r_sat_value(self) -> float:
         if self.r_sat is not None:
             return orig.fget(self)
-        return orig.fget(self) - (self.k_max + 1) + (gamma ** -(self.k_max - 1) - 1.0) / (1.0 - gamma) + 1.0
+        return orig.fget(self) - (self.k_max + 1) + discounted_bound(gamma, self.k_max)
 
     cls.r_sat_value = property(r_sat_value)
-    return (gamma ** -29 - 1.0) / (1.0 - gamma) + 1.0
+    return discounted_bound(gamma, 30)
 
 
 def patch_rho_scale(factor) -> float:
@@ -358,7 +364,7 @@ def main() -> int:
     if args.discounted_r_sat:
         more["r_sat_above_rho_max"] = patch_discounted_r_sat(gamma)
     if args.discounted_r_sat_rho:
-        more["rho_scaled_by"] = patch_rho_scale(lambda k: (k + 1) / ((gamma ** -(k - 1) - 1.0) / (1.0 - gamma) + 1.0))
+        more["rho_scaled_by"] = patch_rho_scale(lambda k: (k + 1) / discounted_bound(gamma, k))
     if args.rho_factor:
         more["rho_scaled_by"] = patch_rho_scale(lambda k: args.rho_factor)
     if args.sbx_class:

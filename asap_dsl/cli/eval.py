@@ -72,7 +72,6 @@ def eval_command(args: argparse.Namespace, out: Optional[TextIO] = None, err: Op
     from asap_dsl.backends.rl.evaluation import evaluate
     from asap_dsl.runs import RunError, RunWriteError
 
-
     out, err = out or sys.stdout, err or sys.stderr
     n_workers = workers(args)
     progress = _Progress(err, "ceiling", args.episodes)
