@@ -18,6 +18,12 @@ process only, so that an idea can be judged in four minutes before it is built p
   (:func:`patch_discounted_r_sat`). ``--discounted-r-sat-rho``: the same ratio of ``r_sat`` to the
   robustness's range at the reward's old scale: the robustness shrunk instead, ``r_sat`` as it was;
   ``--rho-factor F``: the robustness's scale times F (:func:`patch_rho_scale`).
+- ``--reach-terminal AT``: after the share AT of the clock, every stored transition whose next state
+  satisfies ``asap`` is drawn as terminal and worth ``r_sat / (1 - gamma)``: the critic's objective
+  becomes the first arrival, the episodes and the data unchanged (:func:`patch_sample_rewards`).
+  ``--rho-fade START,END,F``: the robustness part of every drawn reward times a factor going from 1
+  at the share START of the clock to F at END (F 0: the shaping gone; ``d``: the discounted bound's
+  ratio, ``(k_max + 1) / discounted_bound``).
 - ``--failed-starts P`` and ``--demonstrations N``: the training's own settings (the default
   preset's rules, :mod:`asap_dsl.backends.rl.curriculum` and ``.demonstrations``; ``0`` and ``0``
   screen the default as it was before them). They were probes here first: the failed starts, and
@@ -48,6 +54,7 @@ import csv
 import json
 import sys
 import time
+from typing import Optional
 from dataclasses import replace
 from pathlib import Path
 
@@ -165,6 +172,51 @@ def patch_rho_scale(factor) -> float:
     orig = cls.rho_scale
     cls.rho_scale = property(lambda self: orig.fget(self) * factor(self.k_max))
     return factor(30)
+
+
+def patch_sample_rewards(r_sat: float, gamma: float, seconds: float, terminal_at: Optional[float],
+                         fade: Optional[tuple]) -> dict:
+    """Rewards transformed as the replay buffer draws them (the stored ones stay as the env gave
+    them): after ``terminal_at`` of the clock's ``seconds``, a transition into ``asap`` (its reward
+    ``r_sat``) is terminal and earns ``r_sat / (1 - gamma)`` under the learner's current discount;
+    with ``fade = (start, end, f)`` every other reward (the scaled robustness, the floor) is
+    multiplied by a factor going linearly from 1 at ``start`` to ``f`` at ``end``. Returns the
+    counters."""
+    import torch as th
+
+    from asap_dsl.backends.rl import buffers
+
+    t0 = time.time()
+    stats = {"gamma": gamma, "factor": 1.0, "terminal": False}
+    orig_discount = session_module.Session.set_discount
+
+    def set_discount(self, model, new_gamma: float) -> None:
+        orig_discount(self, model, new_gamma)
+        stats["gamma"] = float(new_gamma)
+
+    session_module.Session.set_discount = set_discount
+    orig = buffers.FlatReplayBuffer._get_samples
+    sat_at = np.float32(r_sat) - 1e-3
+
+    def get_samples(self, batch_inds, env=None):
+        out = orig(self, batch_inds, env=env)
+        share = (time.time() - t0) / seconds
+        rew, done = out.rewards, out.dones
+        sat = rew >= sat_at
+        if fade is not None:
+            start, end, f = fade
+            w = min(max((share - start) / max(end - start, 1e-9), 0.0), 1.0)
+            stats["factor"] = 1.0 + w * (f - 1.0)
+            if stats["factor"] != 1.0:
+                rew = th.where(sat, rew, rew * stats["factor"])
+        if terminal_at is not None and share >= terminal_at:
+            stats["terminal"] = True
+            rew = th.where(sat, th.full_like(rew, r_sat / (1.0 - stats["gamma"])), rew)
+            done = th.where(sat, th.ones_like(done), done)
+        return out._replace(rewards=rew, dones=done)
+
+    buffers.FlatReplayBuffer._get_samples = get_samples
+    return stats
 
 
 def patch_failure_reward() -> None:
@@ -332,6 +384,8 @@ def main() -> int:
     ap.add_argument("--discounted-r-sat", action="store_true")
     ap.add_argument("--discounted-r-sat-rho", action="store_true")
     ap.add_argument("--rho-factor", type=float, help="the robustness's scale times F, r_sat auto following it")
+    ap.add_argument("--reach-terminal", type=float, metavar="AT")
+    ap.add_argument("--rho-fade", metavar="START,END,F")
     ap.add_argument("--failed-starts", type=float)
     ap.add_argument("--lr-drop", help="AT,FACTOR")
     ap.add_argument("--preset-set", action="append", default=[], metavar="NAME=VALUE")
@@ -367,6 +421,14 @@ def main() -> int:
         more["rho_scaled_by"] = patch_rho_scale(lambda k: (k + 1) / discounted_bound(gamma, k))
     if args.rho_factor:
         more["rho_scaled_by"] = patch_rho_scale(lambda k: args.rho_factor)
+    if args.reach_terminal is not None or args.rho_fade:
+        fade = None
+        if args.rho_fade:
+            a, b, f = args.rho_fade.split(",")
+            k = prog.task(args.task).model.k_max
+            fade = (float(a), float(b), (k + 1) / discounted_bound(gamma, k) if f == "d" else float(f))
+        more["sampled"] = patch_sample_rewards(float(prog.task(args.task).model.r_sat_value), gamma,
+                                               args.minutes * 60, args.reach_terminal, fade)
     if args.sbx_class:
         patch_sbx_class(args.sbx_class)
     if args.return_bound:
