@@ -31,6 +31,9 @@ process only, so that an idea can be judged in four minutes before it is built p
   more, each R times), measured before the rules were built.
 - ``--sbx-class``: sbx's ``CrossQ`` or ``TQC`` in place of SAC (the SAC settings it accepts).
 - ``--lr-drop AT,FACTOR``: after the share AT of the time limit, the learning rate times FACTOR.
+- ``--entropy-drop AT,TARGET``: after the share AT of the time limit, SAC's target entropy TARGET per
+  action dimension (the default's is -3): a narrower policy, whose mean the actor then optimises
+  with less of its own noise around it.
 - ``--action-search K,S,BETA,LOCAL``: SAC's actor also pulled towards the best of K candidate
   actions scored by the critics, on S states of each batch (:func:`patch_action_search`).
 - ``--return-bound``: the critic's targets bounded below by the realised return (:func:`patch_return_bound`).
@@ -253,6 +256,25 @@ def lr_drop_callback(at_seconds: float, factor: float):
     return LrDrop()
 
 
+def entropy_drop_callback(at_seconds: float, per_action: float):
+    """A callback that sets SAC's target entropy to ``per_action`` per action dimension once
+    ``at_seconds`` of wall time have passed (sbx passes it to each update as an array)."""
+    from stable_baselines3.common.callbacks import BaseCallback
+
+    class EntropyDrop(BaseCallback):
+        def _on_training_start(self) -> None:
+            self.t0, self.done = time.perf_counter(), False
+
+        def _on_step(self) -> bool:
+            if not self.done and time.perf_counter() - self.t0 >= at_seconds:
+                self.model.target_entropy = float(per_action * np.prod(self.model.action_space.shape))
+                self.done = True
+                print(f"target entropy now {self.model.target_entropy:g} at {self.num_timesteps} steps", file=sys.stderr)
+            return True
+
+    return EntropyDrop()
+
+
 def patch_observe_rho(prog, task: str) -> None:
     """The policy and critics also see the robustness of every atom of ``asap`` and ``avoid`` at
     the current state (a signed distance to each region, divided by a tenth of its range over the
@@ -388,6 +410,7 @@ def main() -> int:
     ap.add_argument("--rho-fade", metavar="START,END,F")
     ap.add_argument("--failed-starts", type=float)
     ap.add_argument("--lr-drop", help="AT,FACTOR")
+    ap.add_argument("--entropy-drop", help="AT,TARGET per action dimension")
     ap.add_argument("--preset-set", action="append", default=[], metavar="NAME=VALUE")
     ap.add_argument("--action-search", help="CANDIDATES,STATES,BETA,LOCAL")
     ap.add_argument("--observe-rho", action="store_true")
@@ -451,6 +474,9 @@ def main() -> int:
     if args.lr_drop:
         at, factor = (float(v) for v in args.lr_drop.split(","))
         callbacks.append(lr_drop_callback(at * args.minutes * 60, factor))
+    if args.entropy_drop:
+        at, target = (float(v) for v in args.entropy_drop.split(","))
+        callbacks.append(entropy_drop_callback(at * args.minutes * 60, target))
     if args.failed_demos:
         e, n, r, sec = args.failed_demos.split(",")
         cb, fd_stats = patch_failed_demos(prog, args.task, int(e), int(n), int(r), float(sec))
