@@ -509,7 +509,7 @@ def test_tighten_takes_the_min_and_every_sequence_replays():
 
 
 def test_progress_is_reported_as_states_finish_and_shown_on_a_terminal():
-    from asap_dsl.cli.oracle import _Progress
+    from asap_dsl.cli.progress import StatesProgress
 
     prog = asap_dsl.load(SPECS / "dc_motor.asap")
     for workers in (1, 2):
@@ -522,12 +522,12 @@ def test_progress_is_reported_as_states_finish_and_shown_on_a_terminal():
             return True
 
     screen = Terminal()
-    bar = _Progress(screen, "reach", 20)
+    bar = StatesProgress(screen, "reach", 20)
     bar(5)
     bar(5)
     assert "10/20 states" in screen.getvalue() and "left" in screen.getvalue()
     quiet = io.StringIO()
-    _Progress(quiet, "reach", 20)(5)
+    StatesProgress(quiet, "reach", 20)(5)
     assert quiet.getvalue() == ""  # nothing in a pipe or a log
 
 

@@ -21,7 +21,7 @@ from ..runs import json_safe
 from ..sampling import EVAL_SEED
 from .args import (InputError, UsageError, add_episodes, add_format, add_seed, add_workers, natural_int,
                    tolerances_list, workers)
-from .oracle import LiveLine, _Progress
+from .progress import LiveLine, StatesProgress
 
 __all__ = ["eval_command", "fill_eval_subparser"]
 
@@ -74,7 +74,7 @@ def eval_command(args: argparse.Namespace, out: Optional[TextIO] = None, err: Op
 
     out, err = out or sys.stdout, err or sys.stderr
     n_workers = workers(args)
-    progress = _Progress(err, "ceiling", args.episodes)
+    progress = StatesProgress(err, "ceiling", args.episodes)
     refining = _Refining(err, args.episodes)
 
     def started() -> None:  # a line on any stream (a log too), then the live count on a terminal

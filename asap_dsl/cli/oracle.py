@@ -11,13 +11,13 @@ from __future__ import annotations
 import argparse
 import json
 import sys
-import time
 from typing import Optional, TextIO
 
 from ..formatting import percent, steps_text
 from ..sampling import EVAL_SEED
 from .args import (InputError, add_episodes, add_format, add_seed, add_task, add_workers, check_task, planner_samples,
                    positive_amount, positive_int, workers)
+from .progress import StatesProgress
 
 __all__ = ["add_oracle_arguments", "fill_oracle_subparser", "oracle_command", "render_text"]
 
@@ -122,46 +122,6 @@ def _render_rates(d: dict, what: str, out: TextIO, column: str = "ceiling") -> N
         out.write("no state reaches the goal\n")
 
 
-class LiveLine:
-    """One line rewritten in place on a terminal, cleared by :meth:`close`; nothing on any other
-    stream (a pipe, a log), where a carriage return would only leave debris."""
-
-    def __init__(self, stream: TextIO):
-        self.stream, self.shown = stream, False
-        self.live = hasattr(stream, "isatty") and stream.isatty()
-
-    def show(self, text: str) -> None:
-        if self.live:
-            self.stream.write(f"\r  {text}   ")
-            self.stream.flush()
-            self.shown = True
-
-    def close(self) -> None:
-        if self.shown:
-            self.stream.write("\r" + " " * 79 + "\r")
-            self.stream.flush()
-            self.shown = False
-
-
-class _Progress(LiveLine):
-    """States done, rate and time left, on one line of a terminal (nothing elsewhere)."""
-
-    def __init__(self, stream: TextIO, task: str, total: int, what: str = "oracle"):
-        super().__init__(stream)
-        self.task, self.total, self.done, self.what = task, total, 0, what
-        self.start = time.perf_counter()
-
-    def __call__(self, k: int) -> None:
-        self.done += k
-        if not self.live:
-            return
-        spent = time.perf_counter() - self.start
-        rate = self.done / spent if spent > 0 else 0.0
-        left = (self.total - self.done) / rate if rate > 0 else float("inf")
-        eta = "--" if left == float("inf") else f"{int(left // 60)}m{int(left % 60):02d}s"
-        self.show(f"{self.what} {self.task}: {self.done}/{self.total} states, {rate:.2f} states/s, {eta} left")
-
-
 def oracle_command(args: argparse.Namespace, out: Optional[TextIO] = None, err: Optional[TextIO] = None) -> int:
     """Run the oracle on every task (or ``--task``). Exit 0 when at least one task was solved,
     1 on a spec error or when no task could be (each unsupported task is named, with the
@@ -186,7 +146,7 @@ def oracle_command(args: argparse.Namespace, out: Optional[TextIO] = None, err: 
     reports, skipped = [], []
     planned = args.planner or prog.system.kind == "simulator"
     for t in tasks:
-        progress = _Progress(err, t, args.episodes, "planner" if planned else "oracle")
+        progress = StatesProgress(err, t, args.episodes, "planner" if planned else "oracle")
         try:
             if planned:  # a black box, or --planner: an achievable bound through the simulator
                 budget = PlannerBudget(samples=args.samples, iterations=args.iterations)
