@@ -214,8 +214,11 @@ def test_the_results_readme_is_built_from_the_reports_numbers_and_the_papers_cel
     col = _column("bicycle", "oracle (local)", [4, 10, 15, 18, 20, 25, 12, 19, 13, 29])
     methods = [Method(f"{r}/sac", r, "rl", {col.name: [_ev(STEPS), _ev(STEPS)]}) for r in ("asap", "rho", "distance")]
     td3 = Method("asap/td3", "ASAP-Phi (td3)", "rl", {col.name: [_ev(STEPS)]})
-    paths = write(tmp_path / "bicycle", ReportData("t", [col], table1=methods, table2=[methods[0], td3], runs=[],
-                                                  table2_tolerances=[20]))
+    # the look-ahead's row (compare --lookahead): its own column, no paper cell
+    refined = Method("asap/sac+lookahead", "ASAP-Phi (sac) + look-ahead 8", "lookahead",
+                     {col.name: [_ev([4, 10, 15, 18, 20, 25, 12, 19, 13, 29])] * 2})
+    paths = write(tmp_path / "bicycle", ReportData("t", [col], table1=methods + [refined], table2=[methods[0], td3],
+                                                  runs=[], table2_tolerances=[20]))
     saved = json.loads(paths["json"].read_text())
     assert saved["table2"][1]["cells"][col.name]["20"]["mean"] == pytest.approx(0.5)
     shutil.copy(ROOT / "docs" / "results" / "paper.json", tmp_path / "paper.json")
@@ -225,9 +228,10 @@ def test_the_results_readme_is_built_from_the_reports_numbers_and_the_papers_cel
     t1 = text.split("## Table 1")[1].split("## Table 2")[0]
     t2 = text.split("## Table 2")[1].split("## Where")[0]
     # bicycle R within 30: the paper's 92.8 / 80.6 / 78.4 beside ours (9 of 10 states) and the ceiling (10 of 10)
-    assert "| bicycle | R | 30 | 92.8 | 90.0 ± 0.0 | 80.6 | 90.0 ± 0.0 | 78.4 | 90.0 ± 0.0 | 100.0 |" in t1
+    assert "| bicycle | R | 30 | 92.8 | 90.0 ± 0.0 | 80.6 | 90.0 ± 0.0 | 78.4 | 90.0 ± 0.0 | 100.0 ± 0.0 | 100.0 |" in t1
+    assert "| d reward paper | ours | ASAP-Phi + look-ahead, ours | ceiling |" in t1
     assert "| bicycle | R | 20 | 83.0 | 50.0 ± 0.0 | 76.8 | 50.0 |" in t2  # SAC, then TD3 (one seed)
-    assert "| dc_motor | R | 30 | 97.4 | — |" in t1  # no report yet
+    assert "| dc_motor | R | 30 | 97.4 | — |" in t1 and "| 35.5 | — | — | — |" in t1  # no report yet
     assert "Table 1, bicycle R within 30, ASAP-Phi: ours 90.0 ± 0.0 against 92.8" in text
     assert "Table 1, bicycle R within 30, ρ reward" not in text  # ours, 90.0, is above the paper's 80.6
     assert "| bicycle | [report](bicycle/report.md) | `bash scripts/results bicycle` | — | — | 30 min | 2 cores |" in text
@@ -239,7 +243,7 @@ def test_the_results_readme_is_built_from_the_reports_numbers_and_the_papers_cel
     assert main([str(tmp_path), "--readme", str(tmp_path / "README.md")]) == 0
     new = (tmp_path / "README.md").read_text()
     assert new.startswith("# x\nbefore\n") and new.endswith(f"{HEADLINE_END}\nafter\n") and "old table" not in new
-    assert "| bicycle | R | 30 / 25 / 15 | 90.0 / " in new
-    assert "| dc_motor | R | 30 / 25 / 15 | not yet made | — | 97.4 / 95.2 / 89.0 |" in new
+    assert "| bicycle | R | 30 / 25 / 15 | 90.0 / " in new and "| 100.0 / 90.0 / 50.0 | 100.0 / 90.0 / 50.0 |" in new
+    assert "| dc_motor | R | 30 / 25 / 15 | not yet made | — | — | 97.4 / 95.2 / 89.0 |" in new
     (tmp_path / "README.md").write_text("no markers\n")
     assert main([str(tmp_path), "--readme", str(tmp_path / "README.md")]) == 1

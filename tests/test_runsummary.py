@@ -82,6 +82,19 @@ def test_a_lost_runs_directory_is_read_back_from_its_summaries_not_trained_again
     assert runs.count("| reused |") == 2
 
 
+def test_a_summary_without_its_model_is_named_where_the_lookahead_cannot_refine_it(swept, tmp_path):
+    """Read back from its summary, a run has no policy to refine: the report says which run is
+    missing from the look-ahead row instead of showing a row of fewer seeds silently."""
+    spec, root = swept
+    shutil.copytree(root / "kept", tmp_path / "kept")
+    r = _sweep(spec, tmp_path / "c", tmp_path / "kept", "--lookahead", "2")
+    assert r.returncode == 0, r.stderr
+    md = (tmp_path / "c" / "report.md").read_text()
+    assert "+ look-ahead 2" not in _table1(tmp_path / "c")
+    assert "rail go sac asap seed 0: not in the look-ahead row (its summary kept no model" in md
+    assert "rail go sac rho seed 0: not in the look-ahead row" not in md  # only the refined reward's runs
+
+
 def test_a_summary_is_refused_for_an_unfinished_run_and_never_overwrites_a_run(swept, tmp_path):
     _, root = swept
     shutil.copytree(root / "a", tmp_path / "a", ignore=shutil.ignore_patterns(".lock"))

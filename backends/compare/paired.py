@@ -87,19 +87,21 @@ def _lookahead_evaluation(result: dict, prog, task: str, states: np.ndarray, ora
                           cache: Path) -> Optional[dict]:
     """The run's policy refined by the look-ahead (:class:`.controllers.LookaheadController`) on
     the sweep's states, cached beside the baselines under the model's hash (the model is loaded
-    only when it is not cached); None for a summary without its model."""
+    only when it is not cached); None for a summary without its model and no cached refinement."""
     from ..rl.evaluation import load_run
     from .controllers import LookaheadController
 
-    if not result.get("model", True):
-        return None
     model = (result["manifest"].get("model") or {}).get("sha256", "")
     name = f"{Path(result['run_dir']).name}-{str(model)[:16]}-lookahead{hold}-n{len(states)}"
     job = result["job"]
     label = f"{job['algo']} ({job['reward']} reward, seed {job['seed']}), look-ahead {hold}"
-    return _cached_evaluation(cache / f"{name}.json", prog, task, states, oracle, label,
-                              lambda: LookaheadController(prog, load_run(result["run_dir"]).controller(), task,
-                                                          hold=hold))
+
+    def refined():
+        if not result.get("model", True):
+            return None
+        return LookaheadController(prog, load_run(result["run_dir"]).controller(), task, hold=hold)
+
+    return _cached_evaluation(cache / f"{name}.json", prog, task, states, oracle, label, refined)
 
 
 def _run_evaluation(result: dict, episodes: int, oracle) -> dict:
@@ -439,6 +441,9 @@ def _compare(specs, tasks, rewards, algos, seeds, steps, preset, workers, ray, o
                 better = _lookahead_evaluation(r, prog, job.task, states, oracle, lookahead, out_dir / "methods")
                 if better is not None:
                     refined.evaluations.setdefault(col.name, []).append(better)
+                else:  # read back from a summary: its policy is gone, its refinement was never cached
+                    notes.append(f"{what(r)}: not in the look-ahead row (its summary kept no model; "
+                                 f"remove the summary to train it again)")
             if j["reward"] == rewards[0] and j["algo"] in table2:
                 table2[j["algo"]].evaluations.setdefault(col.name, []).append(ev)
             curves.setdefault(col.name, []).append((f"{REWARD_NAMES.get(j['reward'], j['reward'])} ({j['algo']})",
