@@ -60,6 +60,10 @@ CURVES = "curves.csv"
 EVAL = "eval.json"
 TENSORBOARD = "tb"
 EXAMPLES = "examples.json"  # a run summary's recorded example actions (asap_dsl.runsummary)
+# The policy refined by the look-ahead (asapc compare --lookahead) on the first N evaluation states:
+# derived from the model like eval.json, kept beside it so that a summary carries it too.
+LOOKAHEAD = "lookahead{hold}-n{states}.json"
+_LOOKAHEAD = r"lookahead\d+-n\d+\.json"
 
 PathLike = Union[str, os.PathLike]
 Writer = Callable[[Path], None]
@@ -67,7 +71,9 @@ Writer = Callable[[Path], None]
 _FILES = (MANIFEST, SPEC_COPY, MODEL, CURVES, EVAL, EXAMPLES)
 # The names a run directory may hold: its files, their temporaries, checkpoint stages, the lock.
 _RUN_ENTRY = re.compile(r"^(?:%s|%s|%s|\.lock|checkpoint\.(?:new|old)|\.(?:%s)\..+\.tmp(?:\.\w+)?)$" % (
-    "|".join(map(re.escape, _FILES)), CHECKPOINT, TENSORBOARD, "|".join(map(re.escape, _FILES))))
+    "|".join([*map(re.escape, _FILES), _LOOKAHEAD]), CHECKPOINT, TENSORBOARD,
+    "|".join([*map(re.escape, _FILES), _LOOKAHEAD])))
+LOOKAHEAD_FILE = re.compile(f"^{_LOOKAHEAD}$")
 
 
 def checkpoint_seconds() -> float:
@@ -395,6 +401,30 @@ class RunDir:
         data = dict(evaluation)
         data["model_sha256"] = file_record(model)["sha256"]
         atomic_write_json(self.eval_path, data)
+
+    def lookahead_path(self, hold: int, states: int) -> Path:
+        return self.path / LOOKAHEAD.format(hold=int(hold), states=int(states))
+
+    def write_lookahead(self, evaluation: Mapping[str, Any], hold: int, states: int, model_sha256: str) -> Path:
+        """The policy's evaluation refined by a look-ahead holding up to ``hold`` steps on the
+        first ``states`` evaluation states, tied to the model it refined by its sha256."""
+        path = self.lookahead_path(hold, states)
+        atomic_write_json(path, {**evaluation, "model_sha256": model_sha256})
+        return path
+
+    def read_lookahead(self, hold: int, states: int, manifest: Mapping[str, Any]) -> Optional[dict]:
+        """That evaluation, or None: not made, unreadable, or of another model than the manifest's
+        (the next refinement replaces it)."""
+        path = self.lookahead_path(hold, states)
+        if not path.is_file():
+            return None
+        try:
+            data = read_json(path, "look-ahead evaluation")
+        except RunError:
+            return None
+        sha = (manifest.get("model") or {}).get("sha256")
+        ok = isinstance(data, dict) and sha is not None and data.get("model_sha256") == sha and "rows" in data
+        return data if ok else None
 
     def read_eval(self, manifest: Optional[Mapping[str, Any]] = None) -> dict:
         """``eval.json``, checked: its shape, and that it evaluated this run's spec and model."""

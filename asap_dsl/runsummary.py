@@ -5,7 +5,9 @@ kilobytes), its best model (about a megabyte) and a checkpoint with the replay b
 sweep of hours that must outlive the machine it runs on (a session, a CI job) keeps each
 finished run's summary in a directory that is committed: the first four files, and where asked
 the policy's actions on a few example states (``examples.json``: replayed through the rollout,
-they redraw the policy's example trajectories without the model). ``asapc compare
+they redraw the policy's example trajectories without the model), and the policy's evaluations
+refined by a look-ahead (``lookahead8-n1000.json``: ``asapc compare --lookahead`` adds them
+after the run finished, so a report made from the summaries keeps its look-ahead row). ``asapc compare
 --summaries DIR`` writes them as runs finish and copies them back into its runs before it plans:
 a run read back from its summary is finished, never trained again, and its evaluation is still
 checked against the manifest's record of its model.
@@ -23,13 +25,15 @@ from pathlib import Path
 from typing import Any, Mapping, Optional, Union
 
 from .runfiles import RunError, exchange, fsync_dir, remove_tree, shown, writing
-from .runs import CURVES, EVAL, EXAMPLES, MANIFEST, SPEC_COPY, RunDir, atomic_write_json, read_json
+from .runs import (CURVES, EVAL, EXAMPLES, LOOKAHEAD_FILE, MANIFEST, SPEC_COPY, RunDir, atomic_write_json,
+                   read_json)
 
-__all__ = ["SUMMARY_FILES", "is_summary", "read_examples", "restore_summaries", "save_summary"]
+__all__ = ["SUMMARY_FILES", "add_to_summary", "is_summary", "read_examples", "restore_summaries", "save_summary"]
 
 PathLike = Union[str, os.PathLike]
 
-#: What a summary keeps of a run (and :data:`~asap_dsl.runs.EXAMPLES` where asked).
+#: What a summary keeps of a run (and :data:`~asap_dsl.runs.EXAMPLES` where asked, and the
+#: look-ahead's evaluations, :data:`~asap_dsl.runs.LOOKAHEAD`, where the run has them).
 SUMMARY_FILES = (MANIFEST, SPEC_COPY, EVAL, CURVES)
 
 
@@ -58,6 +62,7 @@ def save_summary(run_path: PathLike, dest: PathLike, examples: Optional[Mapping[
         run.read_spec()
         run.read_eval(manifest)
         sources = {n: run.path / n for n in SUMMARY_FILES if (run.path / n).exists()}
+        sources.update({p.name: p for p in run.path.iterdir() if LOOKAHEAD_FILE.match(p.name)})
         with writing(dest):
             dest.mkdir(parents=True, exist_ok=True)
             stage = Path(tempfile.mkdtemp(prefix=f".{target.name}.new-", dir=dest))
@@ -78,6 +83,19 @@ def save_summary(run_path: PathLike, dest: PathLike, examples: Optional[Mapping[
             finally:
                 remove_tree(stage)
     return target
+
+
+def add_to_summary(run_path: PathLike, dest: PathLike, name: str) -> Optional[Path]:
+    """Copy the run's file ``name`` (a look-ahead's evaluation, made after the run's summary was
+    kept) into its summary under ``dest``, atomically; None where the run has no summary there."""
+    run = RunDir(run_path)
+    target = Path(dest).expanduser().resolve() / run.path.name
+    if not (target / MANIFEST).is_file():
+        return None
+    with run.acquire(exclusive=False):
+        data = read_json(run.path / name, name)
+    atomic_write_json(target / name, data)
+    return target / name
 
 
 def restore_summaries(source: PathLike, runs_dir: PathLike) -> list[Path]:

@@ -161,7 +161,10 @@ def test_compare_lookahead_adds_the_refined_row_to_table_1(tiny, tmp_path):
             rows[(cells[0], cells[1])] = float(cells[2].split()[0].strip("*"))
     for T in ("20", "10", "5"):  # the same states: never below the policy it refines
         assert rows[(T, "ASAP-Phi (sac) + look-ahead 3")] >= rows[(T, "ASAP-Phi (sac)")], T
-    assert any(p.name.endswith("-lookahead3-n40.json") for p in (out / "methods").iterdir())
+    # kept in the run beside its eval.json, tied to its model
+    kept = [p for p in (out / "runs").glob("*/lookahead3-n40.json")]
+    assert len(kept) == 1 and json.loads(kept[0].read_text())["model_sha256"] == json.loads(
+        (kept[0].parent / "run.json").read_text())["model"]["sha256"]
 
 
 def test_eval_lookahead_on_a_task_with_history_is_one_sentence(tmp_path, capsys):

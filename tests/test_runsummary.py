@@ -82,9 +82,10 @@ def test_a_lost_runs_directory_is_read_back_from_its_summaries_not_trained_again
     assert runs.count("| reused |") == 2
 
 
-def test_a_summary_without_its_model_is_named_where_the_lookahead_cannot_refine_it(swept, tmp_path):
-    """Read back from its summary, a run has no policy to refine: the report says which run is
-    missing from the look-ahead row instead of showing a row of fewer seeds silently."""
+def test_the_lookahead_row_is_kept_with_the_summaries_and_named_where_it_cannot_be(swept, tmp_path):
+    """A run refined by the look-ahead keeps that evaluation in its summary, so a report made from
+    the summaries on another machine has the same row; read back from a summary that lacks it, a
+    run is named in the notes instead of leaving the row with fewer seeds silently."""
     spec, root = swept
     shutil.copytree(root / "kept", tmp_path / "kept")
     r = _sweep(spec, tmp_path / "c", tmp_path / "kept", "--lookahead", "2")
@@ -93,6 +94,20 @@ def test_a_summary_without_its_model_is_named_where_the_lookahead_cannot_refine_
     assert "+ look-ahead 2" not in _table1(tmp_path / "c")
     assert "rail go sac asap seed 0: not in the look-ahead row (its summary kept no model" in md
     assert "rail go sac rho seed 0: not in the look-ahead row" not in md  # only the refined reward's runs
+
+    # where the models are, the refinement goes into the runs and their summaries
+    shutil.copytree(root / "a", tmp_path / "a", ignore=shutil.ignore_patterns(".lock"))
+    r = _sweep(spec, tmp_path / "a", tmp_path / "kept", "--lookahead", "2")
+    assert r.returncode == 0, r.stderr
+    refined = _table1(tmp_path / "a")
+    assert "ASAP-Phi (sac) + look-ahead 2" in refined
+    assert [p.parent.name for p in (tmp_path / "kept").glob("*/lookahead2-n1000.json")] == \
+        [p.name for p in (tmp_path / "kept").iterdir() if "-asap-" in p.name]
+    # another machine, the summaries only: the same table, the row included
+    r = _sweep(spec, tmp_path / "d", tmp_path / "kept", "--lookahead", "2")
+    assert r.returncode == 0, r.stderr
+    assert _table1(tmp_path / "d") == refined
+    assert "not in the look-ahead row" not in (tmp_path / "d" / "report.md").read_text()
 
 
 def test_a_summary_is_refused_for_an_unfinished_run_and_never_overwrites_a_run(swept, tmp_path):

@@ -18,7 +18,7 @@ from asap_dsl.rollout import Evaluator
 from asap_dsl.processes import Interrupts
 from asap_dsl.runfiles import command_line, lock_dir, shown, writing
 from asap_dsl.runs import RunDir, RunError, atomic_write_json, json_safe, package_versions, spec_hash
-from asap_dsl.runsummary import read_examples, restore_summaries, save_summary
+from asap_dsl.runsummary import add_to_summary, read_examples, restore_summaries, save_summary
 from asap_dsl.sampling import EVAL_SEED, task_states
 
 from . import phase_plots, plots
@@ -40,12 +40,21 @@ class CompareResult:
     failed: list = field(default_factory=list)  # the runs that could not be used: run, run_dir, error
 
 
+def _evaluation(prog, task: str, states: np.ndarray, oracle, label: str, controller) -> dict:
+    """``controller``'s evaluation on the seeded states, as a run's eval.json holds it."""
+    from ..rl.evaluation import summarise
+
+    start = time.perf_counter()
+    res = Evaluator(prog, task, states).run(controller)
+    return summarise(res, method=label, prog=prog, task=task, seed=EVAL_SEED,
+                     tolerances=list(prog.task(task).model.tolerances), oracle=oracle,
+                     seconds=time.perf_counter() - start).to_dict()
+
+
 def _cached_evaluation(path: Path, prog, task: str, states: np.ndarray, oracle, label: str,
                        controller: Callable[[], object]) -> Optional[dict]:
     """A controller's evaluation on the seeded states, read from ``path`` where it was cached,
     else rolled out (``controller()`` builds it; None: nothing to evaluate) and cached there."""
-    from ..rl.evaluation import summarise
-
     if path.is_file():
         try:
             return json.loads(path.read_text(encoding="utf-8"))
@@ -54,11 +63,7 @@ def _cached_evaluation(path: Path, prog, task: str, states: np.ndarray, oracle, 
     ctrl = controller()
     if ctrl is None:
         return None
-    start = time.perf_counter()
-    res = Evaluator(prog, task, states).run(ctrl)
-    ev = summarise(res, method=label, prog=prog, task=task, seed=EVAL_SEED,
-                   tolerances=list(prog.task(task).model.tolerances), oracle=oracle,
-                   seconds=time.perf_counter() - start).to_dict()
+    ev = _evaluation(prog, task, states, oracle, label, ctrl)
     atomic_write_json(path, ev)
     return ev
 
@@ -84,24 +89,28 @@ def _baseline(prog, task: str, kind: str, states: np.ndarray, oracle, cache: Pat
 
 
 def _lookahead_evaluation(result: dict, prog, task: str, states: np.ndarray, oracle, hold: int,
-                          cache: Path) -> Optional[dict]:
+                          summaries: Optional[str]) -> Optional[dict]:
     """The run's policy refined by the look-ahead (:class:`.controllers.LookaheadController`) on
-    the sweep's states, cached beside the baselines under the model's hash (the model is loaded
-    only when it is not cached); None for a summary without its model and no cached refinement."""
+    the sweep's states: read from the run (:meth:`RunDir.read_lookahead`, restored with its
+    summary), else made from its model, kept in the run and added to its summary under
+    ``summaries``; None for a summary without its model or that evaluation."""
     from ..rl.evaluation import load_run
     from .controllers import LookaheadController
 
-    model = (result["manifest"].get("model") or {}).get("sha256", "")
-    name = f"{Path(result['run_dir']).name}-{str(model)[:16]}-lookahead{hold}-n{len(states)}"
+    run, manifest = RunDir(result["run_dir"]), result["manifest"]
+    with run.acquire(exclusive=False):
+        kept = run.read_lookahead(hold, len(states), manifest)
+    if kept is not None or not result.get("model", True):
+        return kept
     job = result["job"]
     label = f"{job['algo']} ({job['reward']} reward, seed {job['seed']}), look-ahead {hold}"
-
-    def refined():
-        if not result.get("model", True):
-            return None
-        return LookaheadController(prog, load_run(result["run_dir"]).controller(), task, hold=hold)
-
-    return _cached_evaluation(cache / f"{name}.json", prog, task, states, oracle, label, refined)
+    ev = json.loads(json.dumps(json_safe(_evaluation(
+        prog, task, states, oracle, label, LookaheadController(prog, load_run(result["run_dir"]).controller(), task, hold=hold)))))
+    with run.acquire(exclusive=True):
+        path = run.write_lookahead(ev, hold, len(states), manifest["model"]["sha256"])
+    if summaries is not None:
+        add_to_summary(run.path, summaries, path.name)
+    return ev
 
 
 def _run_evaluation(result: dict, episodes: int, oracle) -> dict:
@@ -438,10 +447,10 @@ def _compare(specs, tasks, rewards, algos, seeds, steps, preset, workers, ray, o
             if j["algo"] == algos[0] and j["reward"] in table1:
                 table1[j["reward"]].evaluations.setdefault(col.name, []).append(ev)
             if refine and j["algo"] == algos[0] and j["reward"] == rewards[0]:
-                better = _lookahead_evaluation(r, prog, job.task, states, oracle, lookahead, out_dir / "methods")
+                better = _lookahead_evaluation(r, prog, job.task, states, oracle, lookahead, summaries)
                 if better is not None:
                     refined.evaluations.setdefault(col.name, []).append(better)
-                else:  # read back from a summary: its policy is gone, its refinement was never cached
+                else:  # read back from a summary: its policy is gone, its refinement was never kept
                     notes.append(f"{what(r)}: not in the look-ahead row (its summary kept no model; "
                                  f"remove the summary to train it again)")
             if j["reward"] == rewards[0] and j["algo"] in table2:
