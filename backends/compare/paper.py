@@ -147,8 +147,8 @@ def readme(results: Path) -> str:
             "SAC policies refined on the spec's simulator by the look-ahead (`asapc compare --lookahead 8`, "
             "as `asapc eval RUN --lookahead 8`: held candidate actions followed by the policy, the one "
             "reaching soonest applied; never later than the policy from any state) — what the policy and "
-            "the simulator do at run time, not what training achieved. A report whose runs were read back "
-            "from summaries without their models has no such row (—).", ""]
+            "the simulator do at run time, not what training achieved; — where a report was made without "
+            "`--lookahead`.", ""]
     out += header([name for _, name in TABLE1_METHODS], "ASAP-Phi + look-ahead, ours")
     table(1, [(name, f"{key}/sac", ("method", key)) for key, name in TABLE1_METHODS],
           lambda k: (BENCHMARKS.index(k[0]), k[1], -k[2]), extra=REFINED)
