@@ -390,6 +390,26 @@ def patch_demo_paths(path: str, deadline: int) -> None:
     demonstrations.solve = solve
 
 
+def fraction_or_d(text: str):
+    """A number, or ``d`` (the discounted bound's ratio, for ``--rho-fade``)."""
+    return text if text == "d" else float(text)
+
+
+def comma(*kinds):
+    """An argparse type: comma-separated values, one of each kind in order (``--lr-drop 0.5,0.1``);
+    a wrong count or value is argparse's one-line usage error, not a traceback."""
+    def parse(text: str) -> tuple:
+        parts = text.split(",")
+        if len(parts) != len(kinds):
+            raise argparse.ArgumentTypeError(f"expected {len(kinds)} comma-separated values, got {text!r}")
+        try:
+            return tuple(kind(p) for kind, p in zip(kinds, parts))
+        except ValueError:
+            said = {float: "a number", int: "a whole number", fraction_or_d: "a number or d"}
+            raise argparse.ArgumentTypeError(f"expected {', '.join(said[k] for k in kinds)}; got {text!r}") from None
+    return parse
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("spec")
@@ -407,17 +427,18 @@ def main() -> int:
     ap.add_argument("--discounted-r-sat-rho", action="store_true")
     ap.add_argument("--rho-factor", type=float, help="the robustness's scale times F, r_sat auto following it")
     ap.add_argument("--reach-terminal", type=float, metavar="AT")
-    ap.add_argument("--rho-fade", metavar="START,END,F")
+    ap.add_argument("--rho-fade", metavar="START,END,F", type=comma(float, float, fraction_or_d))
     ap.add_argument("--failed-starts", type=float)
-    ap.add_argument("--lr-drop", help="AT,FACTOR")
-    ap.add_argument("--entropy-drop", help="AT,TARGET per action dimension")
+    ap.add_argument("--lr-drop", help="AT,FACTOR", type=comma(float, float))
+    ap.add_argument("--entropy-drop", help="AT,TARGET per action dimension", type=comma(float, float))
     ap.add_argument("--preset-set", action="append", default=[], metavar="NAME=VALUE")
-    ap.add_argument("--action-search", help="CANDIDATES,STATES,BETA,LOCAL")
+    ap.add_argument("--action-search", help="CANDIDATES,STATES,BETA,LOCAL", type=comma(int, int, float, float))
     ap.add_argument("--observe-rho", action="store_true")
     ap.add_argument("--demo-paths", help="an oracle cache of benchmarks/imitation.py")
     ap.add_argument("--return-bound", action="store_true")
-    ap.add_argument("--failed-demos", help="EVERY,STATES,REPEAT,SECONDS")
-    ap.add_argument("--demo-bc", help="BETA,FILTER (FILTER 1: only where the critics prefer the oracle's action)")
+    ap.add_argument("--failed-demos", help="EVERY,STATES,REPEAT,SECONDS", type=comma(int, int, int, float))
+    ap.add_argument("--demo-bc", help="BETA,FILTER (FILTER 1: only where the critics prefer the oracle's action)",
+                    type=comma(float, int))
     ap.add_argument("--steps", type=int, default=20_000_000, help="a step budget (with --minutes 0: none)")
     args = ap.parse_args()
     prog = asap_dsl.load(args.spec)
@@ -447,9 +468,9 @@ def main() -> int:
     if args.reach_terminal is not None or args.rho_fade:
         fade = None
         if args.rho_fade:
-            a, b, f = args.rho_fade.split(",")
+            a, b, f = args.rho_fade
             k = prog.task(args.task).model.k_max
-            fade = (float(a), float(b), (k + 1) / discounted_bound(gamma, k) if f == "d" else float(f))
+            fade = (a, b, (k + 1) / discounted_bound(gamma, k) if f == "d" else f)
         more["sampled"] = patch_sample_rewards(float(prog.task(args.task).model.r_sat_value), gamma,
                                                args.minutes * 60, args.reach_terminal, fade)
     if args.sbx_class:
@@ -464,22 +485,20 @@ def main() -> int:
     if args.demo_paths:
         patch_demo_paths(args.demo_paths, int(prog.task(args.task).model.deadline))
     if args.demo_bc:
-        beta, filt = args.demo_bc.split(",")
-        more["demo_bc"] = patch_demo_bc(float(beta), bool(int(filt)))
+        beta, filt = args.demo_bc
+        more["demo_bc"] = patch_demo_bc(beta, bool(filt))
     if args.action_search:
-        k, n, beta, local = args.action_search.split(",")
-        patch_action_search(int(k), int(n), float(beta), float(local))
+        patch_action_search(*args.action_search)
     kw = {k: getattr(args, k) for k in ("algo", "demonstrations", "failed_starts") if getattr(args, k) is not None}
     callbacks = []
     if args.lr_drop:
-        at, factor = (float(v) for v in args.lr_drop.split(","))
+        at, factor = args.lr_drop
         callbacks.append(lr_drop_callback(at * args.minutes * 60, factor))
     if args.entropy_drop:
-        at, target = (float(v) for v in args.entropy_drop.split(","))
+        at, target = args.entropy_drop
         callbacks.append(entropy_drop_callback(at * args.minutes * 60, target))
     if args.failed_demos:
-        e, n, r, sec = args.failed_demos.split(",")
-        cb, fd_stats = patch_failed_demos(prog, args.task, int(e), int(n), int(r), float(sec))
+        cb, fd_stats = patch_failed_demos(prog, args.task, *args.failed_demos)
         callbacks.append(cb)
         more["failed_demos"] = fd_stats
     t0 = time.time()
