@@ -70,9 +70,9 @@ Writer = Callable[[Path], None]
 
 _FILES = (MANIFEST, SPEC_COPY, MODEL, CURVES, EVAL, EXAMPLES)
 # The names a run directory may hold: its files, their temporaries, checkpoint stages, the lock.
+_NAMES = "|".join([*map(re.escape, _FILES), _LOOKAHEAD])
 _RUN_ENTRY = re.compile(r"^(?:%s|%s|%s|\.lock|checkpoint\.(?:new|old)|\.(?:%s)\..+\.tmp(?:\.\w+)?)$" % (
-    "|".join([*map(re.escape, _FILES), _LOOKAHEAD]), CHECKPOINT, TENSORBOARD,
-    "|".join([*map(re.escape, _FILES), _LOOKAHEAD])))
+    _NAMES, CHECKPOINT, TENSORBOARD, _NAMES))
 LOOKAHEAD_FILE = re.compile(f"^{_LOOKAHEAD}$")
 
 

@@ -104,8 +104,8 @@ def _lookahead_evaluation(result: dict, prog, task: str, states: np.ndarray, ora
         return kept
     job = result["job"]
     label = f"{job['algo']} ({job['reward']} reward, seed {job['seed']}), look-ahead {hold}"
-    ev = json.loads(json.dumps(json_safe(_evaluation(
-        prog, task, states, oracle, label, LookaheadController(prog, load_run(result["run_dir"]).controller(), task, hold=hold)))))
+    refined = LookaheadController(prog, load_run(result["run_dir"]).controller(), task, hold=hold)
+    ev = json.loads(json.dumps(json_safe(_evaluation(prog, task, states, oracle, label, refined))))
     with run.acquire(exclusive=True):
         path = run.write_lookahead(ev, hold, len(states), manifest["model"]["sha256"])
     if summaries is not None:
