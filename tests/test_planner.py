@@ -170,6 +170,30 @@ def test_the_shortenings_clock_is_bounded_and_finding_keeps_the_whole_budget():
         PlannerBudget(shorten_seconds=-1.0)
 
 
+def test_on_the_simulated_clock_a_slower_machine_searches_the_same():
+    """With ``steps_per_second`` the time limit is read in simulator steps rolled out, not on
+    the wall clock: a planner whose simulator is slowed down stops at the same iteration and
+    finds the same sequence (a training run's demonstrations are the same on every machine)."""
+    prog = asap_dsl.loads(RAIL, "rail.asap")
+    budget = PlannerBudget(samples=32, iterations=10_000, polish=0.0, steps_per_second=20_000.0)
+    fast, slow = Planner(prog, "go", budget, time_limit=0.5), Planner(prog, "go", budget, time_limit=0.5)
+    rollout = slow.evaluator.run
+
+    def sluggish(*args, **kwargs):
+        time.sleep(0.002)
+        return rollout(*args, **kwargs)
+
+    slow.evaluator.run = sluggish
+    x0 = np.array([-0.6])
+    a, b = fast.plan(x0), slow.plan(x0)
+    assert (a.status, a.steps, a.rollouts, a.iterations) == (b.status, b.steps, b.rollouts, b.iterations)
+    assert np.array_equal(a.actions, b.actions) and fast.rolled == slow.rolled
+    assert a.steps == rail_minimum(-0.6) and a.iterations < 10_000  # the clock ended it, not the iterations
+    assert 10_000 < fast.rolled <= 10_000 + 32 * 20  # 0.5 s at 20,000 steps a second, and one batch more
+    with pytest.raises(ValueError, match="steps_per_second must be a finite number, at least 0"):
+        PlannerBudget(steps_per_second=-1.0)
+
+
 def test_the_planners_workers_are_spawned_not_forked(monkeypatch):
     """A worker forked from a process that has stepped MuJoCo inherits its thread pool, and
     freeing it there waits in pthread_cond_destroy for threads that exist only in the parent, for

@@ -72,7 +72,10 @@ class PlannerBudget:
     ``samples`` candidate sequences per iteration, ``iterations`` iterations (the time limit per
     state caps both); ``hold`` steps per knot of the piecewise-constant sequences; ``method``:
     ``cem`` (cross-entropy), ``mppi`` (path-integral weights) or ``ps`` (predictive sampling:
-    the best candidate is the next mean, the spread fixed).
+    the best candidate is the next mean, the spread fixed). ``steps_per_second``: 0 reads the
+    time limits on the wall clock; above 0 a second of them is that many simulator steps rolled
+    out, so that the search, and what it finds, is the same on every machine (a training run's
+    demonstrations; a slower machine takes longer instead of finding less).
     """
 
     samples: int = 128
@@ -92,6 +95,7 @@ class PlannerBudget:
     polish: float = 30.0
     shorten_seconds: float = 2.0
     descents: int = 8
+    steps_per_second: float = 0.0
 
     def __post_init__(self):
         if self.method not in METHODS:
@@ -102,7 +106,7 @@ class PlannerBudget:
                 raise ValueError(f"the planner's {name} must be a whole number, at least 1; got {v!r}")
         if self.samples < 8:
             raise ValueError(f"the planner needs at least 8 samples per iteration; got {self.samples}")
-        for name in ("polish", "shorten_seconds"):
+        for name in ("polish", "shorten_seconds", "steps_per_second"):
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, (int, float)) or not v >= 0 or not math.isfinite(v):
                 raise ValueError(f"the planner's {name} must be a finite number, at least 0; got {v!r}")
@@ -222,6 +226,13 @@ class Planner:
         self.knots = -(-self.deadline // self.budget.hold)
         self.weight = 10.0
         self.refine_terminal = False
+        self.rolled = 0  # simulator steps rolled out (rows x steps), the clock under ``steps_per_second``
+
+    def now(self) -> float:
+        """The clock the time limits are read on, in seconds: the wall clock, or the simulator steps
+        rolled out so far at the budget's ``steps_per_second``."""
+        rate = self.budget.steps_per_second
+        return self.rolled / rate if rate > 0 else time.perf_counter()
 
     # ------------------------------------------------------------------ sequences
     def actions(self, z: np.ndarray) -> np.ndarray:
@@ -237,6 +248,7 @@ class Planner:
             U = np.concatenate([U, np.repeat(U[-1:], self.K - K, axis=0)])
         res = self.evaluator.run(SequenceController(U[:, :steps]), states=np.tile(x0, (self.K, 1)), steps=steps,
                                  robustness=True)
+        self.rolled += self.K * steps
         t_reach, rho = res.t_reach[:K], res.rho[:K]
         failed = np.isin(res.end_reason[:K], ("avoid", "out_of_bounds", "non_finite")) & ~np.isfinite(t_reach)
         return t_reach, self.cost(t_reach, rho, failed, terminal)
@@ -251,6 +263,7 @@ class Planner:
                 a = np.asarray(a, dtype=np.float64).reshape(-1, self.m)[:steps]
                 U[i, : len(a)] = a
             res = self.evaluator.run(SequenceController(U), states=np.tile(x0, (self.K, 1)), steps=steps)
+            self.rolled += self.K * steps
             out.append(res.t_reach[: len(part)])
         return np.concatenate(out) if out else np.zeros(0)
 
@@ -282,7 +295,7 @@ class Planner:
         "do nothing" finds no way (moving first takes the swimmer away from its goal), and to
         shorten what it found. Returns ``(steps, knots, rollouts)`` of the first candidate that
         reached within ``horizon`` (``inf, None`` if none); it stops once it has spent ``rollouts``
-        or the clock passes ``until`` (:func:`time.perf_counter`)."""
+        or the clock passes ``until`` (:meth:`now`)."""
         import scipy.optimize
 
         h = self.deadline if horizon is None else max(1, min(int(horizon), self.deadline))
@@ -306,7 +319,7 @@ class Planner:
             if t_reach[k] < found[0]:
                 found[0], found[1] = float(t_reach[k]), zs[k].copy()
             g = (cost[1: D + 1] - cost[D + 1:]) / (2 * eps)
-            if found[1] is not None or used[0] >= rollouts or time.perf_counter() > until:
+            if found[1] is not None or used[0] >= rollouts or self.now() > until:
                 raise StopIteration
             return float(cost[0]), g
 
@@ -323,11 +336,11 @@ class Planner:
         in ``len(actions)`` steps): the sequence compressed in time to a tenth fewer steps (a
         faster stroke is the natural guess for arriving sooner), then :meth:`descend` at that
         horizon; a step at a time once a tenth fails, until one step fewer fails or the clock
-        (``deadline``, :func:`time.perf_counter`) or the ``rollouts`` run out. Returns the
+        (``deadline``, :meth:`now`) or the ``rollouts`` run out. Returns the
         sequences found, longest first, and the rollouts spent."""
         out, used = [np.asarray(actions, float).reshape(-1, self.m)], 0
         cut = max(1, len(out[0]) // 10)
-        while len(out[-1]) > 1 and time.perf_counter() < deadline and used < rollouts:
+        while len(out[-1]) > 1 and self.now() < deadline and used < rollouts:
             cur = out[-1]
             h = max(1, len(cur) - cut)
             squeezed = cur[np.floor(np.arange(h) * len(cur) / h).astype(int)]
@@ -461,7 +474,7 @@ class Planner:
         reaches (one at the centre of the action box, the others around random sequences), for
         dynamics where doing little is a local optimum (the pilot of
         :func:`~asap_dsl.backends.oracle.planning.plan_states`)."""
-        start = time.perf_counter()
+        start, begun = time.perf_counter(), self.now()
         b = self.budget
         x0 = np.asarray(x0, dtype=np.float64).ravel()
         if x0.shape != (self.n,) or not np.all(np.isfinite(x0)):
@@ -480,7 +493,7 @@ class Planner:
         timed_out = False
         archive: list = []
         for it in range(b.iterations if iterations is None else int(iterations)):
-            if time.perf_counter() - start > self.time_limit:
+            if self.now() - begun > self.time_limit:
                 timed_out = True
                 break
             found = math.isfinite(best_t)
@@ -524,9 +537,9 @@ class Planner:
             z, island = self._population(kept, mu, sigma, rng)
         U = None if best_z is None else self.actions(best_z[None])[0, : int(best_t)]
         if b.polish > 0 and not timed_out:
-            U, used = self.polish(x0, U, archive, rng, b.polish * K * b.iterations, start + self.time_limit)
+            U, used = self.polish(x0, U, archive, rng, b.polish * K * b.iterations, begun + self.time_limit)
             rollouts += used
-            timed_out = U is None and time.perf_counter() - start > self.time_limit
+            timed_out = U is None and self.now() - begun > self.time_limit
         seconds = time.perf_counter() - start
         if U is None:
             return PlannedState(index, x0, None, "timeout" if timed_out else "not_found", False, seconds=seconds,
@@ -563,7 +576,7 @@ class Planner:
                 used += len(fresh)
                 starts += list(fresh[np.argsort(cost, kind="stable")[:n]])
             for z0 in starts:
-                if used >= rollouts or time.perf_counter() > deadline:
+                if used >= rollouts or self.now() > deadline:
                     break
                 t, z, spent = self.descend(x0, z0, 100, rollouts=rollouts - used, until=deadline)
                 used += spent
@@ -572,6 +585,6 @@ class Planner:
                     break
             if actions is None:
                 return None, used
-        until = min(deadline, time.perf_counter() + self.budget.shorten_seconds)
+        until = min(deadline, self.now() + self.budget.shorten_seconds)
         found, spent = self.shorten(x0, actions, until, rollouts=max(0.0, rollouts - used))
         return found[-1], used + spent

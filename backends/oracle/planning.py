@@ -229,7 +229,7 @@ def _pilot(prog, planner: Planner, budget: PlannerBudget, time_limit: float, see
     coarse = replace(budget, hold=max(budget.hold, budget.pilot_hold), polish=0.0)
     pilot = Planner(prog, planner.task_name, coarse, time_limit * budget.pilot, seed)
     start = time.perf_counter()
-    until = start + time_limit * budget.pilot
+    until = pilot.now() + time_limit * budget.pilot
     r = pilot.plan(centre, -1, warm=warm)
     spent = r.rollouts
     if r.steps is None:
@@ -239,7 +239,7 @@ def _pilot(prog, planner: Planner, budget: PlannerBudget, time_limit: float, see
         starts, used = pilot.ranked_periodic(centre, rng, budget.islands)
         spent += used
         for z0 in starts[: budget.islands]:
-            if time.perf_counter() > until:
+            if pilot.now() > until:
                 break
             t, z, used = pilot.descend(centre, z0)
             spent += used

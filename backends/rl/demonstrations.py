@@ -32,15 +32,30 @@ from asap_dsl.sampling import EVAL_SEED, task_states
 from .config import VALIDATION_SEED
 from .presets import OFF_POLICY
 
-__all__ = ["DEMONSTRATION_SEED_OFFSET", "DEMONSTRATION_STATE_SECONDS", "Demonstrations", "Witnesses",
-           "add_demonstrations", "demonstration_seed", "keep", "longest", "replay", "search_count", "searcher", "solve",
-           "store", "unavailable"]
+__all__ = ["DEMONSTRATION_PLANNER_STEPS_PER_SECOND", "DEMONSTRATION_SEED_OFFSET", "DEMONSTRATION_STATE_SECONDS",
+           "Demonstrations", "Witnesses", "add_demonstrations", "demonstration_seed", "keep", "longest", "replay",
+           "search_budget_text", "search_count", "searcher", "solve", "store", "unavailable"]
 
 #: Added to the run's seed for the demonstrations' initial states (and their episode lengths).
 #: Larger than both fixed seeds, so that no run's seed can map onto them.
 DEMONSTRATION_SEED_OFFSET = 10_007
 #: The oracle's search time per demonstration state: a hard state is given up, not waited for.
 DEMONSTRATION_STATE_SECONDS = 5.0
+#: On a black box those seconds are the planner's simulated clock, this many simulator steps a
+#: second, not the wall clock: a run's demonstrations, and so the run, are the same on every
+#: machine (on the wall clock a machine three times slower found 9 of the swimmer's 36 where the
+#: reports' found 30, and its run stalled at 18% within 50 steps instead of 100%). About the
+#: planner's speed on the 2-core machine of docs/results; a slower one searches longer.
+DEMONSTRATION_PLANNER_STEPS_PER_SECOND = 60_000.0
+
+
+def search_budget_text(prog, budget_seconds: Optional[float], state_seconds: float = DEMONSTRATION_STATE_SECONDS) -> str:
+    """How long the search may take, for the run's log line: the oracle's wall-clock budget, or
+    the planner's time per state on its simulated clock (its wall time follows the machine)."""
+    if searcher(prog) == "planner":
+        return (f", {state_seconds:g} s each on the planner's clock "
+                f"({DEMONSTRATION_PLANNER_STEPS_PER_SECOND:,.0f} simulator steps a second)")
+    return "" if budget_seconds is None else f", for at most {budget_seconds:.0f} s"
 
 
 def demonstration_seed(run_seed: int) -> int:
@@ -319,7 +334,7 @@ def solve(prog, task: str, count: int, run_seed: int, *, workers: Optional[int] 
     from asap_dsl.limits import available_cores
 
     from ..oracle.goals import OracleUnsupported
-    from ..oracle.planner import PlannerUnsupported
+    from ..oracle.planner import PlannerBudget, PlannerUnsupported
     from ..oracle.planning import plan_states
     from ..oracle.solver import run as run_oracle
 
@@ -331,8 +346,8 @@ def solve(prog, task: str, count: int, run_seed: int, *, workers: Optional[int] 
     asked = int(count)
     count = search_count(prog, count, state_seconds, budget_seconds)
     # The planner's entries are named by the states it searched (their number is the rule's, not the ask's).
-    path = (_cache_path(prog, task, seed, count if black_box else asked, state_seconds, budget_seconds, restarts)
-            if cache else None)
+    path = (_cache_path(prog, task, seed, count if black_box else asked, state_seconds, budget_seconds, restarts,
+                        DEMONSTRATION_PLANNER_STEPS_PER_SECOND if black_box else None) if cache else None)
     if path is not None:
         hit = _load(path, n)
         if hit is not None:
@@ -345,7 +360,8 @@ def solve(prog, task: str, count: int, run_seed: int, *, workers: Optional[int] 
     try:
         if black_box:
             report = plan_states(prog, task, states=states, workers=n_workers, time_limit=state_seconds,
-                                 progress=progress)
+                                 progress=progress,
+                                 budget=PlannerBudget(steps_per_second=DEMONSTRATION_PLANNER_STEPS_PER_SECOND))
         else:  # under a budget the oracle stops taking states once it is spent
             report = run_oracle(prog, task, states=states, workers=n_workers, time_limit=state_seconds,
                                 progress=progress, budget_seconds=budget_seconds, restarts=restarts)
@@ -376,7 +392,7 @@ def solve(prog, task: str, count: int, run_seed: int, *, workers: Optional[int] 
 
 
 def _cache_path(prog, task: str, seed: int, count: int, state_seconds: float, budget: Optional[float],
-                restarts: Optional[int] = None):
+                restarts: Optional[int] = None, steps_per_second: Optional[float] = None):
     from asap_dsl.runs import spec_hash
 
     from ..oracle.cache import cache_dir
@@ -384,7 +400,8 @@ def _cache_path(prog, task: str, seed: int, count: int, state_seconds: float, bu
     bound = "none" if budget is None else f"{float(budget):g}"
     return (cache_dir() / "demonstrations"
             / (f"{spec_hash(prog.source)[:16]}-{task}-s{seed}-n{count}-t{float(state_seconds):g}-b{bound}"
-               + ("" if restarts is None else f"-r{int(restarts)}") + ".json"))
+               + ("" if restarts is None else f"-r{int(restarts)}")
+               + ("" if steps_per_second is None else f"-k{float(steps_per_second):g}") + ".json"))
 
 
 def _load(path, n: int) -> Optional[Witnesses]:

@@ -159,7 +159,8 @@ def add_late(session, model, steps: int, why: str = NOTHING) -> Optional[dict]:
     and any new ``gamma``), or None when a stop was requested meanwhile (the rule then stays due)."""
     from asap_dsl.limits import available_cores
 
-    from .demonstrations import DEMONSTRATION_STATE_SECONDS, add_demonstrations, longest, search_count, searcher, solve
+    from .demonstrations import (DEMONSTRATION_STATE_SECONDS, add_demonstrations, longest, search_budget_text,
+                                 search_count, searcher, solve)
     from .imitation import IMITATION_STATE_SECONDS, set_imitation
 
     rule: LateDemonstrations = session.late
@@ -181,7 +182,7 @@ def add_late(session, model, steps: int, why: str = NOTHING) -> Optional[dict]:
             else f"no validation has succeeded after {steps:,} steps")
     count = search_count(session.prog, states, per_state, budget)
     session._tell(f"{head}: the {who} on {count:,} initial states of the run's own seed for demonstrations"
-                  + ("" if budget is None else f", for at most {budget:.0f} s") + " ...")
+                  + search_budget_text(session.prog, budget, per_state) + " ...")
     # The oracle in one process: forking one that runs a learner (JAX's or torch's threads) is not
     # safe. The planner's workers are spawned, and so are the oracle's once JAX is loaded (the
     # imitation's search: sbx). It keeps the oracle's second initial guess per horizon, which

@@ -181,7 +181,8 @@ class Session:
         """A new run's demonstration sequences from the oracle (:mod:`.demonstrations`), before
         the model is built (its workers are forked: not from a process running JAX). Their wall
         time counts as the run's, the time limit's included. None where the run has none."""
-        from .demonstrations import longest, search_count, searcher, solve, unavailable
+        from .demonstrations import (DEMONSTRATION_STATE_SECONDS, longest, search_budget_text, search_count, searcher,
+                                     solve, unavailable)
 
         if self.cfg.demonstrations <= 0:
             why = unavailable(self.prog, self.cfg.algo)
@@ -197,7 +198,8 @@ class Session:
         budget = self.cfg.imitation_seconds if imitated else self.cfg.demonstration_seconds
         count = search_count(self.prog, self.cfg.demonstrations, budget_seconds=budget)
         self._tell(f"demonstrations: the {searcher(self.prog)} on {count:,} initial states of the run's own seed"
-                   + ("" if budget is None else f", for at most {budget:.0f} s") + " ...")
+                   + search_budget_text(self.prog, budget,
+                                        IMITATION_STATE_SECONDS if imitated else DEMONSTRATION_STATE_SECONDS) + " ...")
         found = solve(self.prog, self.cfg.task, self.cfg.demonstrations, self.cfg.seed, budget_seconds=budget,
                       check_stop=check_stop,
                       **({"state_seconds": IMITATION_STATE_SECONDS, "restarts": 0} if imitated else {}))
