@@ -325,6 +325,26 @@ def test_a_signal_after_the_command_has_finished_does_not_change_its_status(spec
     assert gone(tag) == []
 
 
+def test_sigterm_inside_a_string_run_by_exec_still_exits_130(spec, tmp_path, tag):
+    """The random schedule's other finding: SIGTERM while an import ran a string through ``exec``
+    (a dataclass being built) made ``python -m asap_dsl.cli`` end by SIGINT (-2) after it had
+    printed "interrupted". Here the signal lands inside such a string every time."""
+    hook = tmp_path / "hook"
+    hook.mkdir()
+    (hook / "sitecustomize.py").write_text(
+        "import argparse, os, signal\n"
+        "_parse = argparse.ArgumentParser.parse_args\n"
+        "def parse_args(self, *a, **k):\n"
+        "    if self.prog == 'asapc':\n"
+        "        exec('os.kill(os.getpid(), signal.SIGTERM)\\nfor _ in range(10**7): pass', "
+        "{'os': os, 'signal': signal})\n"
+        "    return _parse(self, *a, **k)\n"
+        "argparse.ArgumentParser.parse_args = parse_args\n")
+    p = Proc("lint", spec, tag=tag, env={"PYTHONPATH": f"{hook}{os.pathsep}{ROOT}"})
+    code = p.finish()
+    assert code == 130 and p.stderr == "interrupted\n", (code, p.stderr)
+
+
 def test_random_fault_schedule(spec, tmp_path, tag):
     """kill -9 (or SIGTERM) at a random moment, then resume or rerun, again and again; after
     each: only exit 0/1/2/130, no traceback, the run finished or resumable from a checkpoint that

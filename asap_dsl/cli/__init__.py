@@ -31,7 +31,7 @@ if _PROGRAM:
             signal.signal(_sig, _terminated_early)
 
 import argparse  # noqa: E402
-from typing import Optional, Sequence  # noqa: E402
+from typing import NoReturn, Optional, Sequence  # noqa: E402
 
 from .. import __version__
 from ..diagnostics import SpecError, printable
@@ -48,7 +48,7 @@ from .train import fill_train_subparser
 from .tune import fill_tune_subparser
 
 # available_cores and show_data: the library's, named here for scripts that used them from the CLI.
-__all__ = ["available_cores", "build_parser", "main", "show_data"]
+__all__ = ["available_cores", "build_parser", "exit_as_program", "main", "show_data"]
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -139,3 +139,14 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
             signal.signal(signal.SIGINT, signal.SIG_IGN)
         elif main_thread:
             signal.signal(signal.SIGTERM, old)
+
+
+def exit_as_program(status: int) -> NoReturn:
+    """End the process with ``status`` (``python -m asap_dsl.cli``'s last step).
+
+    CPython remembers a KeyboardInterrupt that cut any string run by ``exec`` (a dataclass or a
+    namedtuple being built by an import when SIGTERM arrived), even after :func:`main` caught it,
+    and under ``-m`` then ends the process by SIGINT instead of with the status (-2, not 130;
+    found by the random fault schedule on CI). Running a string resets that memory."""
+    exec("")
+    sys.exit(status)

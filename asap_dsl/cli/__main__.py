@@ -1,7 +1,5 @@
 """``python -m asap_dsl.cli``: the same entry point as the ``asapc`` command."""
 
-import sys
+from asap_dsl.cli import exit_as_program, main
 
-from asap_dsl.cli import main
-
-sys.exit(main())
+exit_as_program(main())
