@@ -103,6 +103,25 @@ def test_a_black_box_gets_the_planners_sequences_and_the_buffer_holds_their_repl
     assert np.sum(rew == rew.max()) >= demos.added  # every replay reaches (r_sat)
 
 
+def test_under_a_time_limit_the_planners_budget_caps_its_wall_time(monkeypatch):
+    """A run with a time limit lives on the wall clock: its black box's search stops once the
+    budget's wall seconds are spent (a spent budget: no state), where without it the budget only
+    sets the count; the log line says which."""
+    from asap_dsl.backends.rl.demonstrations import search_budget_text, solve
+
+    monkeypatch.syspath_prepend(str(Path(__file__).resolve().parent / "fixtures"))
+    from test_planner import CART
+
+    prog = asap_dsl.loads(CART % "user_sims:double_integrator", "cart.asap")
+    capped = solve(prog, "reach", 4, 0, workers=1, state_seconds=0.5, budget_seconds=1e-9, wall_capped=True,
+                   cache=False)
+    free = solve(prog, "reach", 4, 0, workers=1, state_seconds=0.5, budget_seconds=1e-9, cache=False)
+    assert capped.states == 0 and capped.sequences == []
+    assert free.states == 1 and free.solved == 1  # the count's floor: one state, searched in full
+    assert search_budget_text(prog, 90.0, 5.0, wall_capped=True).endswith("for at most 90 s")
+    assert "at most" not in search_budget_text(prog, 90.0, 5.0)
+
+
 def test_the_planners_count_is_the_budgets_whatever_the_cores(monkeypatch):
     """A sweep's one-core worker searches as many states as a two-core run (the budget is CPU
     seconds): a count that followed the cores gave the swimmer's seed 1 six solved states."""

@@ -194,6 +194,18 @@ def test_on_the_simulated_clock_a_slower_machine_searches_the_same():
         PlannerBudget(steps_per_second=-1.0)
 
 
+def test_a_wall_clock_cap_leaves_out_the_states_not_begun():
+    """``budget_seconds`` caps the wall clock whatever the budget's clock (a training run's time
+    limit): a spent cap begins no state and the report holds none; a cap far off changes nothing."""
+    prog = asap_dsl.loads(RAIL, "rail.asap")
+    budget = PlannerBudget(samples=32, iterations=12, pilot=1, steps_per_second=20_000.0)
+    free = plan_states(prog, "go", episodes=6, budget=budget)
+    far = plan_states(prog, "go", episodes=6, budget=budget, budget_seconds=1e6)
+    spent = plan_states(prog, "go", episodes=6, budget=budget, budget_seconds=0.0)
+    assert [r.steps for r in far.results] == [r.steps for r in free.results] and len(free.results) == 6
+    assert spent.results == [] and spent.ceiling(20)["states"] == 0
+
+
 def test_the_planners_workers_are_spawned_not_forked(monkeypatch):
     """A worker forked from a process that has stepped MuJoCo inherits its thread pool, and
     freeing it there waits in pthread_cond_destroy for threads that exist only in the parent, for

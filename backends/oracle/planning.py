@@ -99,10 +99,12 @@ def _planner(source: str, name: str, task: str, budget: PlannerBudget, time_limi
 
 def _plan_chunk(payload) -> list[dict]:
     """Process entry: plan (``warm`` given) or exchange (``pool`` given) a chunk of states."""
-    source, name, task, budget, time_limit, seed, states, indices, warm, pool, own = payload
+    source, name, task, budget, time_limit, seed, states, indices, warm, pool, own, until = payload
     planner = _planner(source, name, task, budget, time_limit, seed)
     out = []
     for k, (x0, i) in enumerate(zip(states, indices)):
+        if until is not None and time.time() >= until:  # the wall-clock cap: no state begun after it
+            break
         if pool is None:
             r = planner.plan(x0, i, warm=warm)
         else:
@@ -152,7 +154,7 @@ def _map(payloads: list, workers: int, progress: Optional[Callable[[int], None]]
 def plan_states(prog, task: Optional[str] = None, episodes: int = 1000, seed: int = EVAL_SEED, workers: int = 1,
                 states: Optional[np.ndarray] = None, budget: Optional[PlannerBudget] = None,
                 time_limit: float = STATE_TIME_LIMIT, progress: Optional[Callable[[int], None]] = None,
-                warm: Sequence[np.ndarray] = ()) -> OracleReport:
+                warm: Sequence[np.ndarray] = (), budget_seconds: Optional[float] = None) -> OracleReport:
     """The planner's achievable steps from each of ``episodes`` seeded initial states (or the
     given ``states``) of one task (module docstring).
 
@@ -168,12 +170,17 @@ def plan_states(prog, task: Optional[str] = None, episodes: int = 1000, seed: in
     :param warm: action sequences every state (and the pilot) tries first: another task's
         (``asapc oracle`` passes each task the shortest sequences of the tasks before it that
         share its ``asap``).
+    :param budget_seconds: a cap on the wall clock, whatever the budget's clock (a training run's
+        time limit): no state is begun once these seconds are spent, and those not begun are left
+        out of the report (its ``results`` are then the planned states', in input order), as
+        :func:`~asap_dsl.backends.oracle.solver.run` does; the exchange stops there too.
     :return: a report labelled ``achievable`` (``extra``: ``bound``, ``planner`` with the budget,
         the pilot and the exchange).
     :raises PlannerUnsupported: a simulator that cannot be started from a given state.
     :raises KeyError: an unknown task.
     """
     start = time.perf_counter()
+    until = None if budget_seconds is None else time.time() + max(0.0, float(budget_seconds))
     budget = budget or PlannerBudget()
     planner = Planner(prog, task, budget, time_limit, seed)  # validates the task and the simulator
     tm = planner.task.model
@@ -189,19 +196,22 @@ def plan_states(prog, task: Optional[str] = None, episodes: int = 1000, seed: in
     n_chunks = min(len(states), 8 * workers)  # in one process too: progress after each chunk
     chunks = [c for c in np.array_split(np.arange(len(states)), n_chunks) if len(c)]
     common = (prog.source, prog.file, planner.task_name, budget, time_limit, seed)
-    planned = _map([common + (states[c], [int(i) for i in c], warm, None, None) for c in chunks], workers, progress)
+    planned = _map([common + (states[c], [int(i) for i in c], warm, None, None, until) for c in chunks],
+                   workers, progress)
     by_index = {r.index: r for r in planned}
-    results = [by_index[i] for i in range(len(states))]
+    results = [by_index[i] for i in range(len(states)) if i in by_index]
     pool = shortest_sequences(results, budget.exchange)
     exchanged = 0
-    if pool:
-        own = [r.to_dict(with_actions=True) for r in results]
-        again = _map([common + (states[c], [int(i) for i in c], None, pool, [own[i] for i in c]) for c in chunks],
+    if pool and (until is None or time.time() < until):
+        at = {r.index: k for k, r in enumerate(results)}
+        own = {r.index: r.to_dict(with_actions=True) for r in results}
+        again = _map([common + (states[c], [int(i) for i in c], None, pool, [own[int(i)] for i in c], until)
+                      for c in (np.array([i for i in c if int(i) in at], dtype=int) for c in chunks) if len(c)],
                      workers, None)
         for r in again:
-            cur = results[r.index]
+            cur = results[at[r.index]]
             if r.steps is not None and (cur.steps is None or r.steps < cur.steps):
-                results[r.index] = r
+                results[at[r.index]] = r
                 exchanged += 1
     results = replay_counted(prog, planner.task_name, results)
     extra = {"bound": BOUND, "planner": {**budget.to_dict(), "time_limit": time_limit, "seed": seed,

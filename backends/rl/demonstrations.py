@@ -49,13 +49,17 @@ DEMONSTRATION_STATE_SECONDS = 5.0
 DEMONSTRATION_PLANNER_STEPS_PER_SECOND = 60_000.0
 
 
-def search_budget_text(prog, budget_seconds: Optional[float], state_seconds: float = DEMONSTRATION_STATE_SECONDS) -> str:
+def search_budget_text(prog, budget_seconds: Optional[float], state_seconds: float = DEMONSTRATION_STATE_SECONDS,
+                       wall_capped: bool = False) -> str:
     """How long the search may take, for the run's log line: the oracle's wall-clock budget, or
-    the planner's time per state on its simulated clock (its wall time follows the machine)."""
+    the planner's time per state on its simulated clock (its wall time follows the machine; under
+    ``wall_capped``, a run's time limit, the budget caps it as well)."""
+    cap = "" if budget_seconds is None else f", for at most {budget_seconds:.0f} s"
     if searcher(prog) == "planner":
         return (f", {state_seconds:g} s each on the planner's clock "
-                f"({DEMONSTRATION_PLANNER_STEPS_PER_SECOND:,.0f} simulator steps a second)")
-    return "" if budget_seconds is None else f", for at most {budget_seconds:.0f} s"
+                f"({DEMONSTRATION_PLANNER_STEPS_PER_SECOND:,.0f} simulator steps a second)"
+                + (cap if wall_capped else ""))
+    return cap
 
 
 def demonstration_seed(run_seed: int) -> int:
@@ -315,7 +319,7 @@ def search_count(prog, count: int, state_seconds: float = DEMONSTRATION_STATE_SE
 def solve(prog, task: str, count: int, run_seed: int, *, workers: Optional[int] = None,
           state_seconds: float = DEMONSTRATION_STATE_SECONDS, budget_seconds: Optional[float] = None,
           check_stop: Optional[Callable[[], None]] = None, cache: bool = True,
-          restarts: Optional[int] = None) -> Witnesses:
+          restarts: Optional[int] = None, wall_capped: bool = False) -> Witnesses:
     """Draw ``count`` initial states of ``task`` (seed :func:`demonstration_seed` of ``run_seed``)
     and solve them with the oracle (``workers`` processes; default one per core, or one where
     JAX is loaded already, as in a sweep's worker after its first run). With ``budget_seconds``
@@ -325,6 +329,9 @@ def solve(prog, task: str, count: int, run_seed: int, *, workers: Optional[int] 
     range, at least its sequence's length. ``check_stop()`` is called as the oracle progresses (it
     raises to abandon the search). ``restarts``: the oracle's extra initial guesses per horizon
     (default: its own, :data:`~asap_dsl.backends.oracle.search.RESTARTS` on non-linear dynamics).
+    ``wall_capped``: on a black box the budget also caps the planner's wall time (a run with a time
+    limit, which is the wall clock's); otherwise it only sets how many states the planner takes,
+    each on its simulated clock, so that the search is the same on every machine.
 
     With ``cache``, what was found is kept beside the oracle's cache (per spec hash, task, seed,
     count, time per state and budget) and read back by the next run that asks the same: a sweep's
@@ -346,8 +353,9 @@ def solve(prog, task: str, count: int, run_seed: int, *, workers: Optional[int] 
     asked = int(count)
     count = search_count(prog, count, state_seconds, budget_seconds)
     # The planner's entries are named by the states it searched (their number is the rule's, not the ask's).
+    wall = black_box and wall_capped and budget_seconds is not None
     path = (_cache_path(prog, task, seed, count if black_box else asked, state_seconds, budget_seconds, restarts,
-                        DEMONSTRATION_PLANNER_STEPS_PER_SECOND if black_box else None) if cache else None)
+                        DEMONSTRATION_PLANNER_STEPS_PER_SECOND if black_box else None, wall) if cache else None)
     if path is not None:
         hit = _load(path, n)
         if hit is not None:
@@ -360,7 +368,7 @@ def solve(prog, task: str, count: int, run_seed: int, *, workers: Optional[int] 
     try:
         if black_box:
             report = plan_states(prog, task, states=states, workers=n_workers, time_limit=state_seconds,
-                                 progress=progress,
+                                 progress=progress, budget_seconds=budget_seconds if wall else None,
                                  budget=PlannerBudget(steps_per_second=DEMONSTRATION_PLANNER_STEPS_PER_SECOND))
         else:  # under a budget the oracle stops taking states once it is spent
             report = run_oracle(prog, task, states=states, workers=n_workers, time_limit=state_seconds,
@@ -392,7 +400,7 @@ def solve(prog, task: str, count: int, run_seed: int, *, workers: Optional[int] 
 
 
 def _cache_path(prog, task: str, seed: int, count: int, state_seconds: float, budget: Optional[float],
-                restarts: Optional[int] = None, steps_per_second: Optional[float] = None):
+                restarts: Optional[int] = None, steps_per_second: Optional[float] = None, wall: bool = False):
     from asap_dsl.runs import spec_hash
 
     from ..oracle.cache import cache_dir
@@ -401,7 +409,8 @@ def _cache_path(prog, task: str, seed: int, count: int, state_seconds: float, bu
     return (cache_dir() / "demonstrations"
             / (f"{spec_hash(prog.source)[:16]}-{task}-s{seed}-n{count}-t{float(state_seconds):g}-b{bound}"
                + ("" if restarts is None else f"-r{int(restarts)}")
-               + ("" if steps_per_second is None else f"-k{float(steps_per_second):g}") + ".json"))
+               + ("" if steps_per_second is None else f"-k{float(steps_per_second):g}")
+               + ("-wall" if wall else "") + ".json"))
 
 
 def _load(path, n: int) -> Optional[Witnesses]:
