@@ -203,11 +203,11 @@ def plan_states(prog, task: Optional[str] = None, episodes: int = 1000, seed: in
     pool = shortest_sequences(results, budget.exchange)
     exchanged = 0
     if pool and (until is None or time.time() < until):
-        at = {r.index: k for k, r in enumerate(results)}
+        at = {r.index: k for k, r in enumerate(results)}  # under a cap, only the planned states
         own = {r.index: r.to_dict(with_actions=True) for r in results}
+        kept = [c for c in (c[np.isin(c, list(at))] for c in chunks) if len(c)]
         again = _map([common + (states[c], [int(i) for i in c], None, pool, [own[int(i)] for i in c], until)
-                      for c in (np.array([i for i in c if int(i) in at], dtype=int) for c in chunks) if len(c)],
-                     workers, None)
+                      for c in kept], workers, None)
         for r in again:
             cur = results[at[r.index]]
             if r.steps is not None and (cur.steps is None or r.steps < cur.steps):

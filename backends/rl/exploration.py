@@ -181,8 +181,9 @@ def add_late(session, model, steps: int, why: str = NOTHING) -> Optional[dict]:
     head = (f"validation stopped improving after {steps:,} steps" if stalled
             else f"no validation has succeeded after {steps:,} steps")
     count = search_count(session.prog, states, per_state, budget)
+    wall = cfg.time_limit is not None  # a time limit is the wall clock's: it caps the search too
     session._tell(f"{head}: the {who} on {count:,} initial states of the run's own seed for demonstrations"
-                  + search_budget_text(session.prog, budget, per_state, cfg.time_limit is not None) + " ...")
+                  + search_budget_text(session.prog, budget, per_state, wall) + " ...")
     # The oracle in one process: forking one that runs a learner (JAX's or torch's threads) is not
     # safe. The planner's workers are spawned, and so are the oracle's once JAX is loaded (the
     # imitation's search: sbx). It keeps the oracle's second initial guess per horizon, which
@@ -192,7 +193,7 @@ def add_late(session, model, steps: int, why: str = NOTHING) -> Optional[dict]:
     workers = (None if who == "planner" else available_cores() if imitated and "jax" in sys.modules else 1)
     try:
         witnesses = solve(session.prog, cfg.task, states, cfg.seed, workers=workers, state_seconds=per_state,
-                          budget_seconds=budget, check_stop=check_stop, wall_capped=cfg.time_limit is not None)
+                          budget_seconds=budget, check_stop=check_stop, wall_capped=wall)
     except _Stopped:
         return None
     if stalled:  # as demonstrations from the start: the long manoeuvres, weighted

@@ -198,10 +198,11 @@ class Session:
         budget = self.cfg.imitation_seconds if imitated else self.cfg.demonstration_seconds
         per_state = IMITATION_STATE_SECONDS if imitated else DEMONSTRATION_STATE_SECONDS
         count = search_count(self.prog, self.cfg.demonstrations, budget_seconds=budget)
+        wall = self.cfg.time_limit is not None  # a time limit is the wall clock's: it caps the search too
         self._tell(f"demonstrations: the {searcher(self.prog)} on {count:,} initial states of the run's own seed"
-                   + search_budget_text(self.prog, budget, per_state, self.cfg.time_limit is not None) + " ...")
+                   + search_budget_text(self.prog, budget, per_state, wall) + " ...")
         found = solve(self.prog, self.cfg.task, self.cfg.demonstrations, self.cfg.seed, budget_seconds=budget,
-                      check_stop=check_stop, state_seconds=per_state, wall_capped=self.cfg.time_limit is not None,
+                      check_stop=check_stop, state_seconds=per_state, wall_capped=wall,
                       **({"restarts": 0} if imitated else {}))
         if imitated:  # all of them, as they are: the actor imitates what it sees of the optimum
             return found
