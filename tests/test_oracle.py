@@ -393,6 +393,54 @@ def test_a_search_under_a_budget_stops_taking_states_and_keeps_what_it_solved(wo
     assert list(unspent.steps) == list(full.steps)
 
 
+def _found(report) -> list:
+    return [(r.index, r.status, r.steps, None if r.actions is None else r.actions.round(9).tolist())
+            for r in report.results]
+
+
+def test_on_its_clock_the_search_finds_the_same_on_any_machine_and_any_workers(monkeypatch):
+    """A training run's demonstrations: under a :class:`WorkClock` the time per state and the budget
+    are the work the solves did, each chunk of the tour starts cold with its share of the budget, so
+    one worker, two, and a machine made slow find the same states and sequences (the rover is
+    non-linear: its local minima follow the warm starts)."""
+    from asap_dsl.backends.oracle import solver
+    from asap_dsl.backends.oracle.nlp import ShootingProblems
+
+    monkeypatch.setattr(solver, "BUDGET_CHUNK", 8)
+    prog = asap_dsl.load(SPECS.parent / "examples" / "rover_detour.asap")
+    clock = O.WorkClock()
+    states = O.Oracle(prog, "reach").task.model
+    from asap_dsl.sampling import task_states
+
+    states = task_states(prog.system, states, 16, seed=5)
+    budget = 0.5  # a quarter of the 16 states' work: both chunks stop early
+    one = O.run(prog, "reach", states=states, workers=1, time_limit=5.0, budget_seconds=budget, clock=clock)
+    two = O.run(prog, "reach", states=states, workers=2, time_limit=5.0, budget_seconds=budget, clock=clock)
+    assert 2 <= len(one.results) < 16 and all(r.verified for r in one.results if r.status == "solved")
+    assert _found(two) == _found(one)
+
+    solve = ShootingProblems.solve
+
+    def slow(self, *args):
+        time.sleep(0.1)
+        return solve(self, *args)
+
+    monkeypatch.setattr(ShootingProblems, "solve", slow)
+    slowed = O.run(prog, "reach", states=states, workers=1, time_limit=5.0, budget_seconds=budget, clock=clock)
+    assert _found(slowed) == _found(one) and slowed.seconds > one.seconds
+    # a run's time limit still caps the wall clock: no state begun once it is spent
+    assert O.run(prog, "reach", states=states, clock=clock, budget_seconds=budget, wall_seconds=0.0).results == []
+
+
+def test_on_its_clock_a_state_times_out_by_the_work_done_not_the_seconds():
+    prog = asap_dsl.load(SPECS / "dc_motor.asap")
+    dear = O.Oracle(prog, "reach", time_limit=5.0, clock=O.WorkClock(per_solve=10.0))  # a solve: 10 s
+    x0 = O.run(prog, "reach", episodes=4).results
+    far = max(x0, key=lambda r: r.steps - r.lower_bound)  # searched over more than one horizon
+    r = dear.solve(far.x0)
+    assert r.status == "timeout" and r.solves == 1  # one solve's work: 10 s on that clock
+
+
 def test_wilson_interval():
     from asap_dsl.stats import wilson_interval
 

@@ -23,6 +23,7 @@ from asap_dsl.diagnostics import Span
 from asap_dsl.expr import casadi_namespace, compile_function
 from asap_dsl.stl import ir
 
+from .clock import Work
 from .goals import AllOf, Constant, Goals, Literal, Normal, flatten_and
 
 __all__ = ["GOOD_STATUSES", "IPOPT_OPTIONS", "MARGIN", "START_ORDER", "ShootingProblems"]
@@ -31,6 +32,8 @@ __all__ = ["GOOD_STATUSES", "IPOPT_OPTIONS", "MARGIN", "START_ORDER", "ShootingP
 MARGIN = 1e-6
 #: Solver return statuses that count as a clean solve.
 GOOD_STATUSES = ("Solve_Succeeded", "Solved_To_Acceptable_Level")
+#: IPOPT's callbacks, whose evaluations the simulated clock counts.
+CALLBACKS = ("nlp_f", "nlp_g", "nlp_grad_f", "nlp_jac_g", "nlp_hess_l")
 #: Order in which the extra initial guesses are tried (see :meth:`ShootingProblems.other_guesses`).
 START_ORDER = ("shift", "rollout", "line")
 
@@ -74,6 +77,7 @@ class ShootingProblems:
         self._coords_fn: dict[Any, Any] = {}  # region name, or id of a comparison margin -> compiled
         self._built: dict[tuple[int, int], dict] = {}
         self._warm: dict[tuple[int, int], np.ndarray] = {}   # last solution per (N, alternative)
+        self.work = Work()  # what every solve computed: the simulated clock's (:mod:`.clock`)
 
     # ------------------------------------------------------------------ conditions
     def _coords(self, region: str):
@@ -202,6 +206,15 @@ class ShootingProblems:
         self._built[key] = entry
         return entry
 
+    def _count(self, entry: dict, stats: dict) -> None:
+        """Add one solve's work (its callbacks' instructions, its iterations over the variables)."""
+        if "instructions" not in entry:
+            entry["instructions"] = {name: _instructions(entry["solver"], name) for name in CALLBACKS}
+        self.work.instructions += sum(int(stats.get("n_call_" + name, 0)) * k
+                                      for name, k in entry["instructions"].items())
+        self.work.variable_iterations += (int(stats.get("iter_count", 0)) + 1) * entry["nw"]
+        self.work.solves += 1
+
     def solve(self, N: int, j: int, x0: np.ndarray, w0: np.ndarray) -> tuple[Optional[np.ndarray], float, bool]:
         """One IPOPT solve of alternative ``j`` at horizon ``N`` from ``x0``, started at ``w0``:
         ``(w, objective, clean)``, ``w`` None when it produced nothing usable, ``clean`` whether
@@ -210,7 +223,9 @@ class ShootingProblems:
         try:
             sol = entry["solver"](x0=w0, p=x0, lbx=entry["lbx"], ubx=entry["ubx"],
                                   lbg=entry["lbg"], ubg=entry["ubg"])
-            status = entry["solver"].stats().get("return_status", "unknown")
+            stats = entry["solver"].stats()
+            status = stats.get("return_status", "unknown")
+            self._count(entry, stats)
             w = np.asarray(sol["x"]).ravel()
             obj = float(sol["f"])
         except Exception:  # noqa: BLE001 - IPOPT/CasADi errors are solver failures, never crashes
@@ -228,6 +243,10 @@ class ShootingProblems:
     def remember(self, N: int, j: int, w: np.ndarray) -> None:
         """Keep ``w`` as the warm start of alternative ``j`` at ``N`` for the next initial state."""
         self._warm[(N, j)] = w
+
+    def forget(self) -> None:
+        """Drop the warm starts: the next state starts cold, as in a fresh process."""
+        self._warm.clear()
 
     # ------------------------------------------------------------------ initial guesses
     def _pack(self, N: int, j: int, X: np.ndarray, U: np.ndarray) -> np.ndarray:
@@ -319,3 +338,11 @@ class ShootingProblems:
                     X = np.clip(X, self.low, self.high)  # keeps a diverging rollout usable
                     name = "rollout" + ("" if sign == 0 else "+" if sign > 0 else "-")
                     yield name, self._pack(N, j, X, np.tile(u, (N, 1)))
+
+
+def _instructions(solver, name: str) -> int:
+    """The CasADi instructions of one of the solver's callbacks (0 where CasADi does not say)."""
+    try:
+        return int(solver.get_function(name).n_instructions())
+    except Exception:  # noqa: BLE001 - a clock's estimate, never a failed solve
+        return 0

@@ -48,6 +48,7 @@ from asap_dsl.expr import degree
 from asap_dsl.stl import ir, offline
 
 from .bounds import HorizonBounds, coords_linear
+from .clock import WorkClock
 from .goals import Goals, OracleUnsupported
 from .nlp import IPOPT_OPTIONS, ShootingProblems
 from .results import StateResult
@@ -61,6 +62,9 @@ RESTARTS = 1
 #: Seconds of horizon search per initial state before it is reported as ``timeout`` (a deadline
 #: of 1,000,000 steps with an unreachable goal would otherwise search for days).
 STATE_TIME_LIMIT = 120.0
+#: Under a simulated clock, the wall clock still ends a state's search after this many times its
+#: limit: a guard against a hung solve, never reached by a search the clock prices right.
+WALL_GUARD = 10.0
 
 
 class Oracle:
@@ -73,6 +77,10 @@ class Oracle:
         :data:`RESTARTS` for non-linear dynamics, 0 for linear ones).
     :param interval_bound: start the N-search of non-linear systems at the interval lower bound.
     :param time_limit: seconds of search per state (each IPOPT solve is capped by it too).
+    :param clock: read ``time_limit`` on this simulated clock (:mod:`.clock`) instead of the wall
+        clock, so that what is found is the same on every machine (a training run's
+        demonstrations); the wall clock then only ends a state after :data:`WALL_GUARD` times the
+        limit (a solve that hangs).
     :raises OracleUnsupported: a black-box system, or a task outside what the oracle solves.
     :raises KeyError: an unknown task.
     :raises ValueError: a time limit that is not a positive number.
@@ -80,8 +88,9 @@ class Oracle:
 
     def __init__(self, prog, task: Optional[str] = None, ipopt_options: Optional[dict] = None,
                  restarts: Optional[int] = None, interval_bound: bool = True,
-                 time_limit: float = STATE_TIME_LIMIT):
+                 time_limit: float = STATE_TIME_LIMIT, clock: Optional[WorkClock] = None):
         self.prog = prog
+        self.clock = clock
         self.system = sys_ = prog.system
         if sys_.kind == "simulator":
             raise OracleUnsupported(
@@ -101,7 +110,8 @@ class Oracle:
         if not (time_limit > 0 and math.isfinite(time_limit)):
             raise ValueError(f"the time limit per state must be a positive number of seconds; got {time_limit}")
         self.time_limit = float(time_limit)
-        options = dict(IPOPT_OPTIONS, **{"ipopt.max_cpu_time": self.time_limit}, **(ipopt_options or {}))
+        self.wall_limit = self.time_limit * (1.0 if clock is None else WALL_GUARD)
+        options = dict(IPOPT_OPTIONS, **{"ipopt.max_cpu_time": self.wall_limit}, **(ipopt_options or {}))
         self.low, self.high = sys_.state_low, sys_.state_high
         self.ulow, self.uhigh = sys_.action_low, sys_.action_high
         self.bounds = HorizonBounds(sys_, self.regions, self.goals.regions_now, self.deadline, self.step_np,
@@ -229,6 +239,7 @@ class Oracle:
         """The minimum number of steps from ``x0`` (see the module docstring); ``index`` is the
         result's index. Solver failures never raise."""
         start = time.perf_counter()
+        begun = self.problems.work.copy()
         x0 = np.asarray(x0, float).ravel()
         if x0.shape != (self.n,) or not np.all(np.isfinite(x0)):
             return StateResult(index, x0, None, "nan", False, seconds=time.perf_counter() - start)
@@ -236,11 +247,11 @@ class Oracle:
         if self.trajectory_ok(tr0):
             return StateResult(index, x0, 0, "solved", True, actions=np.zeros((0, self.m)),
                                trajectory=tr0, seconds=time.perf_counter() - start)
-        lb = max(1, self.lower_bound(x0, until=start + self.time_limit))
+        lb = max(1, self.lower_bound(x0, until=start + self.wall_limit))
         failures = solves = restarts = 0
         own: dict[int, np.ndarray] = {}
         for N in range(lb, self.deadline + 1):
-            if time.perf_counter() - start > self.time_limit:
+            if self._spent(start, begun) > self.time_limit or time.perf_counter() - start > self.wall_limit:
                 return StateResult(index, x0, None, "timeout", False, failures, solves, lb,
                                    seconds=time.perf_counter() - start, restarts=restarts, horizon=N - 1)
             status, U, failed, used, extra = self._try(N, x0, own)
@@ -257,24 +268,38 @@ class Oracle:
         return StateResult(index, x0, None, "solver_failed" if failures else "infeasible", False, failures,
                            solves, lb, seconds=time.perf_counter() - start, restarts=restarts)
 
+    def _spent(self, start: float, begun) -> float:
+        """Seconds since ``start`` (``time.perf_counter``), or on the clock since the work ``begun``."""
+        if self.clock is None:
+            return time.perf_counter() - start
+        return self.clock.seconds(self.problems.work.since(begun))
+
     def solve_many(self, states: np.ndarray, indices: Optional[Sequence[int]] = None,
                    progress: Optional[Callable[[int], None]] = None,
-                   until: Optional[float] = None) -> list[StateResult]:
+                   until: Optional[float] = None, budget: Optional[float] = None) -> list[StateResult]:
         """Solve ``states`` in nearest-neighbour order (warm starts), results in input order;
         ``indices``: the results' indices (default 0, 1, ...); ``progress(1)`` after each state.
-        ``until``: a wall-clock time (``time.time()``) after which no state is begun; the results
-        are then the solved states' alone."""
+        ``until``: a wall-clock time (``time.time()``) after which no state is begun; ``budget``:
+        seconds on the oracle's clock after which none is begun; with either the results are the
+        solved states' alone. Under a simulated clock the first state starts cold, so that the
+        states' results do not depend on what this process solved before."""
         states = np.asarray(states, float).reshape(-1, self.n)
         idx = list(range(len(states))) if indices is None else list(indices)
         order = nearest_neighbour_order(states, self.system)
         out: list[Optional[StateResult]] = [None] * len(states)
+        if self.clock is not None:
+            self.problems.forget()
+        start, begun = time.perf_counter(), self.problems.work.copy()
         for k in order:
             if until is not None and time.time() >= until:
+                break
+            if budget is not None and self._spent(start, begun) >= budget:
                 break
             out[k] = self.solve(states[k], idx[k])
             if progress is not None:
                 progress(1)
-        return [r for r in out if r is not None] if until is not None else out  # type: ignore[return-value]
+        partial = until is not None or budget is not None
+        return [r for r in out if r is not None] if partial else out  # type: ignore[return-value]
 
 
 def nearest_neighbour_order(states: np.ndarray, system) -> list[int]:

@@ -42,6 +42,7 @@ from asap_dsl.processes import pool_size
 from asap_dsl.sampling import EVAL_SEED, task_states
 from asap_dsl.stl import ir
 
+from .clock import WorkClock
 from .goals import OracleUnsupported
 from .results import OracleReport, StateResult
 from .search import STATE_TIME_LIMIT, Oracle, nearest_neighbour_order
@@ -123,24 +124,26 @@ def _init_worker() -> None:
 
 def _worker(payload):
     """Process entry: re-load the spec from its text (programs hold compiled closures), once per
-    process and setting: the chunks a worker solves share its solvers and warm starts."""
+    process and setting: the chunks a worker solves share its solvers (and, on the wall clock,
+    its warm starts)."""
     import asap_dsl
 
-    source, name, task, states, indices, ipopt, restarts, interval_bound, time_limit, until = payload
-    key = (source, name, task, repr(ipopt), restarts, interval_bound, time_limit)
+    source, name, task, states, indices, ipopt, restarts, interval_bound, time_limit, clock, until, budget = payload
+    key = (source, name, task, repr(ipopt), restarts, interval_bound, time_limit, clock)
     oracle = _WORKER_ORACLES.get(key)
     if oracle is None:
         _WORKER_ORACLES.clear()
         oracle = _WORKER_ORACLES[key] = Oracle(asap_dsl.loads(source, name), task, ipopt, restarts, interval_bound,
-                                               time_limit)
-    return [r.to_dict(with_actions=True) for r in oracle.solve_many(states, indices, until=until)]
+                                               time_limit, clock)
+    return [r.to_dict(with_actions=True) for r in oracle.solve_many(states, indices, until=until, budget=budget)]
 
 
 def run(prog, task: Optional[str] = None, episodes: int = 1000, seed: int = EVAL_SEED, workers: int = 1,
         states: Optional[np.ndarray] = None, ipopt_options: Optional[dict] = None,
         restarts: Optional[int] = None, interval_bound: bool = True,
         time_limit: float = STATE_TIME_LIMIT, progress: Optional[Callable[[int], None]] = None,
-        budget_seconds: Optional[float] = None) -> OracleReport:
+        budget_seconds: Optional[float] = None, clock: Optional[WorkClock] = None,
+        wall_seconds: Optional[float] = None) -> OracleReport:
     """The oracle's minimum time from each of ``episodes`` seeded initial states (or the given
     ``states``) of one task.
 
@@ -165,13 +168,20 @@ def run(prog, task: Optional[str] = None, episodes: int = 1000, seed: int = EVAL
         of the report (its ``results`` are then the solved states', in input order). The workers
         and their solvers live for the whole search: a pool per chunk built every horizon's NLP
         again and lost the warm starts (attitude: 1.2 s per state and worker, against 0.35 s).
+    :param clock: read ``time_limit`` and ``budget_seconds`` on this simulated clock
+        (:mod:`.clock`): the tour is cut into chunks of :data:`BUDGET_CHUNK` whatever the workers,
+        each starts cold and gets its states' share of the budget, so that what is found is the
+        same on every machine and any number of workers (the budget is then CPU seconds: on one
+        core the search takes longer, it does not find less).
+    :param wall_seconds: a cap on the wall clock as well: no state is begun after it (a run's time
+        limit).
     :return: the per-state results (in input order) and the ceiling per tolerance.
     :raises OracleUnsupported: a black-box system, or a task outside what the oracle solves.
     :raises KeyError: an unknown task.
     :raises ValueError: a time limit that is not a positive number.
     """
     start = time.perf_counter()
-    oracle = Oracle(prog, task, ipopt_options, restarts, interval_bound, time_limit)  # validates system and task up front
+    oracle = Oracle(prog, task, ipopt_options, restarts, interval_bound, time_limit, clock)  # validates up front
     t = oracle.task.model
     if states is None:
         states = task_states(prog.system, t, episodes, seed=seed)
@@ -179,38 +189,45 @@ def run(prog, task: Optional[str] = None, episodes: int = 1000, seed: int = EVAL
     else:
         used_seed = None
     states = np.asarray(states, float).reshape(-1, oracle.n)
-    workers = pool_size(max(1, min(int(workers), len(states))))
 
     # No state is begun after this wall-clock time (the workers read it too: the overrun is one state's).
-    until = None if budget_seconds is None else time.time() + max(0.0, budget_seconds - (time.perf_counter() - start))
+    walls = [w for w in (wall_seconds, budget_seconds if clock is None else None) if w is not None]
+    until = None if not walls else time.time() + max(0.0, min(walls) - (time.perf_counter() - start))
 
     def spent() -> bool:
         return until is not None and time.time() >= until
 
-    if budget_seconds is None and workers == 1:
+    order = nearest_neighbour_order(states, prog.system)
+    if clock is not None or until is not None:  # chunks of the tour, taken until the wall's budget is spent
+        chunks = [order[lo:lo + BUDGET_CHUNK] for lo in range(0, len(order), BUDGET_CHUNK)]
+    else:
+        pieces = max(1, min(len(states), 8 * int(workers)))
+        chunks = [list(c) for c in np.array_split(np.asarray(order), pieces) if len(c)]
+    # On the clock each chunk has its states' share of the budget (whoever solves it, whenever).
+    shares = [None if clock is None or budget_seconds is None else budget_seconds * len(c) / len(states)
+              for c in chunks]
+    workers = pool_size(max(1, min(int(workers), len(chunks))))
+
+    if workers == 1 and until is None and clock is None:
         results = oracle.solve_many(states, progress=progress)
     elif workers == 1:
-        order = nearest_neighbour_order(states, prog.system)
         by_index = {}
-        for lo in range(0, len(order), BUDGET_CHUNK):
+        for chunk, share in zip(chunks, shares):
             if spent():
                 break
-            chunk = order[lo:lo + BUDGET_CHUNK]
-            for r in oracle.solve_many(states[chunk], indices=chunk, progress=progress, until=until):
+            for r in oracle.solve_many(states[chunk], indices=chunk, progress=progress, until=until, budget=share):
                 by_index[r.index] = r
         results = [by_index[i] for i in sorted(by_index)]
     else:
         import multiprocessing as mp
 
-        order = nearest_neighbour_order(states, prog.system)
-        pieces = (min(len(states), 8 * workers) if budget_seconds is None
-                  else max(1, -(-len(states) // BUDGET_CHUNK)))
-        chunks = np.array_split(np.asarray(order), pieces)
         payloads = [(prog.source, prog.file, oracle.task_name, states[c], [int(i) for i in c], ipopt_options,
-                     restarts, interval_bound, time_limit, until) for c in chunks if len(c)]
-        # Forked where it is safe (quicker to start); spawned once JAX is loaded (`asapc eval` of an
-        # sbx run): forking its threads may deadlock, and JAX warns the user so.
-        method = "fork" if "fork" in mp.get_all_start_methods() and "jax" not in sys.modules else "spawn"
+                     restarts, interval_bound, time_limit, clock, until, share) for c, share in zip(chunks, shares)]
+        # Forked where it is safe (quicker to start); spawned once a learner's library is loaded (a
+        # training run's demonstrations, `asapc eval`): forking JAX's or torch's threads may
+        # deadlock, and JAX warns the user so.
+        learner = "jax" in sys.modules or "torch" in sys.modules
+        method = "fork" if "fork" in mp.get_all_start_methods() and not learner else "spawn"
         parts = []
         with mp.get_context(method).Pool(workers, initializer=_init_worker) as pool:
             pending = iter(payloads)

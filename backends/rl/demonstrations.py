@@ -20,7 +20,6 @@ goal (the env's ``t_reach``) or fails on the way is dropped.
 from __future__ import annotations
 
 import functools
-import sys
 import time
 from dataclasses import asdict, dataclass, replace
 from typing import Any, Callable, Optional, Sequence
@@ -47,19 +46,21 @@ DEMONSTRATION_STATE_SECONDS = 5.0
 #: reports' found 30, and its run stalled at 18% within 50 steps instead of 100%). About the
 #: planner's speed on the 2-core machine of docs/results; a slower one searches longer.
 DEMONSTRATION_PLANNER_STEPS_PER_SECOND = 60_000.0
+#: On known dynamics they are the oracle's simulated clock (its solves' work priced in CPU seconds of
+#: that machine, :class:`~asap_dsl.backends.oracle.clock.WorkClock`), for the same reason; so is the budget.
 
 
 def search_budget_text(prog, budget_seconds: Optional[float], state_seconds: float = DEMONSTRATION_STATE_SECONDS,
                        wall_capped: bool = False) -> str:
-    """How long the search may take, for the run's log line: the oracle's wall-clock budget, or
-    the planner's time per state on its simulated clock (its wall time follows the machine; under
-    ``wall_capped``, a run's time limit, the budget caps it as well)."""
-    cap = "" if budget_seconds is None else f", for at most {budget_seconds:.0f} s"
+    """How long the search may take, for the run's log line: the time per state (and the
+    oracle's budget in all) on the searcher's simulated clock (its wall time follows the machine;
+    under ``wall_capped``, a run's time limit, the budget caps it as well)."""
+    cap = "" if budget_seconds is None or not wall_capped else f", for at most {budget_seconds:.0f} s"
     if searcher(prog) == "planner":
         return (f", {state_seconds:g} s each on the planner's clock "
-                f"({DEMONSTRATION_PLANNER_STEPS_PER_SECOND:,.0f} simulator steps a second)"
-                + (cap if wall_capped else ""))
-    return cap
+                f"({DEMONSTRATION_PLANNER_STEPS_PER_SECOND:,.0f} simulator steps a second)" + cap)
+    in_all = "" if budget_seconds is None else f" and {budget_seconds:.0f} s in all"
+    return f", {state_seconds:g} s each{in_all} on the oracle's clock (its solves' work in CPU seconds)" + cap
 
 
 def demonstration_seed(run_seed: int) -> int:
@@ -321,17 +322,17 @@ def solve(prog, task: str, count: int, run_seed: int, *, workers: Optional[int] 
           check_stop: Optional[Callable[[], None]] = None, cache: bool = True,
           restarts: Optional[int] = None, wall_capped: bool = False) -> Witnesses:
     """Draw ``count`` initial states of ``task`` (seed :func:`demonstration_seed` of ``run_seed``)
-    and solve them with the oracle (``workers`` processes; default one per core, or one where
-    JAX is loaded already, as in a sweep's worker after its first run). With ``budget_seconds``
+    and solve them with the oracle or the planner (``workers`` processes; default one per core). With ``budget_seconds``
     the states are solved a batch at a time and the search stops once the budget is spent (the
     states not reached are left out). A sequence longer than the task's longest episode is left
     out, as is a state already in the goal; each replay's episode length is drawn from the task's
     range, at least its sequence's length. ``check_stop()`` is called as the oracle progresses (it
     raises to abandon the search). ``restarts``: the oracle's extra initial guesses per horizon
     (default: its own, :data:`~asap_dsl.backends.oracle.search.RESTARTS` on non-linear dynamics).
-    ``wall_capped``: on a black box the budget also caps the planner's wall time (a run with a time
-    limit, which is the wall clock's); otherwise it only sets how many states the planner takes,
-    each on its simulated clock, so that the search is the same on every machine.
+    Both searchers read the times on their simulated clocks, so that the search is the same on
+    every machine: the planner's budget sets how many states it takes, the oracle's is shared out
+    over its chunks of states (:func:`~asap_dsl.backends.oracle.solver.run`). ``wall_capped``: the
+    budget also caps the search's wall time (a run with a time limit, which is the wall clock's).
 
     With ``cache``, what was found is kept beside the oracle's cache (per spec hash, task, seed,
     count, time per state and budget) and read back by the next run that asks the same: a sweep's
@@ -340,6 +341,7 @@ def solve(prog, task: str, count: int, run_seed: int, *, workers: Optional[int] 
     """
     from asap_dsl.limits import available_cores
 
+    from ..oracle.clock import WorkClock
     from ..oracle.goals import OracleUnsupported
     from ..oracle.planner import PlannerBudget, PlannerUnsupported
     from ..oracle.planning import plan_states
@@ -353,16 +355,18 @@ def solve(prog, task: str, count: int, run_seed: int, *, workers: Optional[int] 
     asked = int(count)
     count = search_count(prog, count, state_seconds, budget_seconds)
     # The planner's entries are named by the states it searched (their number is the rule's, not the ask's).
-    wall = black_box and wall_capped and budget_seconds is not None
+    wall = wall_capped and budget_seconds is not None
+    clock = WorkClock()
+    tag = f"k{DEMONSTRATION_PLANNER_STEPS_PER_SECOND:g}" if black_box else f"c{clock.tag()}"
     path = (_cache_path(prog, task, seed, count if black_box else asked, state_seconds, budget_seconds, restarts,
-                        DEMONSTRATION_PLANNER_STEPS_PER_SECOND if black_box else None, wall) if cache else None)
+                        tag, wall) if cache else None)
     if path is not None:
         hit = _load(path, n)
         if hit is not None:
             return hit
     states = task_states(prog.system, tm, int(count), seed=seed)
-    if workers is None:  # forking a process that runs JAX may deadlock (the planner's are spawned)
-        workers = 1 if "jax" in sys.modules and not black_box else available_cores()
+    if workers is None:  # (the workers are spawned from a process that runs a learner)
+        workers = available_cores()
     n_workers = max(1, min(int(workers), len(states)))
     progress = None if check_stop is None else (lambda _k: check_stop())
     try:
@@ -370,9 +374,10 @@ def solve(prog, task: str, count: int, run_seed: int, *, workers: Optional[int] 
             report = plan_states(prog, task, states=states, workers=n_workers, time_limit=state_seconds,
                                  progress=progress, budget_seconds=budget_seconds if wall else None,
                                  budget=PlannerBudget(steps_per_second=DEMONSTRATION_PLANNER_STEPS_PER_SECOND))
-        else:  # under a budget the oracle stops taking states once it is spent
+        else:  # under a budget each chunk of the oracle's states stops once its share is spent
             report = run_oracle(prog, task, states=states, workers=n_workers, time_limit=state_seconds,
-                                progress=progress, budget_seconds=budget_seconds, restarts=restarts)
+                                progress=progress, budget_seconds=budget_seconds, restarts=restarts,
+                                clock=clock, wall_seconds=budget_seconds if wall else None)
         results = list(report.results)
     except (OracleUnsupported, PlannerUnsupported) as err:
         return Witnesses(seed, len(states), np.zeros((0, n)), [], np.zeros(0, np.int64),
@@ -400,7 +405,8 @@ def solve(prog, task: str, count: int, run_seed: int, *, workers: Optional[int] 
 
 
 def _cache_path(prog, task: str, seed: int, count: int, state_seconds: float, budget: Optional[float],
-                restarts: Optional[int] = None, steps_per_second: Optional[float] = None, wall: bool = False):
+                restarts: Optional[int] = None, clock: str = "", wall: bool = False):
+    """The cache file of these witnesses; ``clock`` names the searcher's simulated clock."""
     from asap_dsl.runs import spec_hash
 
     from ..oracle.cache import cache_dir
@@ -409,7 +415,7 @@ def _cache_path(prog, task: str, seed: int, count: int, state_seconds: float, bu
     return (cache_dir() / "demonstrations"
             / (f"{spec_hash(prog.source)[:16]}-{task}-s{seed}-n{count}-t{float(state_seconds):g}-b{bound}"
                + ("" if restarts is None else f"-r{int(restarts)}")
-               + ("" if steps_per_second is None else f"-k{float(steps_per_second):g}")
+               + ("" if not clock else f"-{clock}")
                + ("-wall" if wall else "") + ".json"))
 
 

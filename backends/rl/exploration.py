@@ -44,7 +44,6 @@ had (PPO or A2C) or the run asked for its own (``--demonstrations N``, 0 include
 
 from __future__ import annotations
 
-import sys
 import time
 from dataclasses import dataclass, field
 from typing import Any, Mapping, Optional, Sequence
@@ -157,8 +156,6 @@ def add_late(session, model, steps: int, why: str = NOTHING) -> Optional[dict]:
     progress and recorded in the manifest (``late_demonstrations``, the list of firings). Returns
     what was added (:class:`~.demonstrations.Demonstrations` as a dict with ``at_step``, ``why``
     and any new ``gamma``), or None when a stop was requested meanwhile (the rule then stays due)."""
-    from asap_dsl.limits import available_cores
-
     from .demonstrations import (DEMONSTRATION_STATE_SECONDS, add_demonstrations, longest, search_budget_text,
                                  search_count, searcher, solve)
     from .imitation import IMITATION_STATE_SECONDS, set_imitation
@@ -184,15 +181,14 @@ def add_late(session, model, steps: int, why: str = NOTHING) -> Optional[dict]:
     wall = cfg.time_limit is not None  # a time limit is the wall clock's: it caps the search too
     session._tell(f"{head}: the {who} on {count:,} initial states of the run's own seed for demonstrations"
                   + search_budget_text(session.prog, budget, per_state, wall) + " ...")
-    # The oracle in one process: forking one that runs a learner (JAX's or torch's threads) is not
-    # safe. The planner's workers are spawned, and so are the oracle's once JAX is loaded (the
-    # imitation's search: sbx). It keeps the oracle's second initial guess per horizon, which
-    # `--imitation`'s search drops: along a long tour of warm starts, the pendulum's paths without it
-    # degraded to 42% within 65 steps on one seed's states (72% solved afresh); with it 520 states in
-    # 730 s, 71% within 65, and the run gained 10 / 17 / 8 points (docs/training.md).
-    workers = (None if who == "planner" else available_cores() if imitated and "jax" in sys.modules else 1)
+    # On every core (the searchers spawn their workers from a process that runs a learner: forking
+    # JAX's or torch's threads is not safe); their clocks make what they find the same on one. It
+    # keeps the oracle's second initial guess per horizon, which `--imitation`'s search drops: along
+    # a long tour of warm starts, the pendulum's paths without it degraded to 42% within 65 steps on
+    # one seed's states (72% solved afresh); with it 520 states in 730 s, 71% within 65, and the run
+    # gained 10 / 17 / 8 points (docs/training.md).
     try:
-        witnesses = solve(session.prog, cfg.task, states, cfg.seed, workers=workers, state_seconds=per_state,
+        witnesses = solve(session.prog, cfg.task, states, cfg.seed, state_seconds=per_state,
                           budget_seconds=budget, check_stop=check_stop, wall_capped=wall)
     except _Stopped:
         return None
