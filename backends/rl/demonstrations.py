@@ -38,7 +38,9 @@ __all__ = ["DEMONSTRATION_PLANNER_STEPS_PER_SECOND", "DEMONSTRATION_SEED_OFFSET"
 #: Added to the run's seed for the demonstrations' initial states (and their episode lengths).
 #: Larger than both fixed seeds, so that no run's seed can map onto them.
 DEMONSTRATION_SEED_OFFSET = 10_007
-#: The oracle's search time per demonstration state: a hard state is given up, not waited for.
+#: The search time per demonstration state: a hard state is given up, not waited for. On known
+#: dynamics it (and the search's budget) is read on the oracle's simulated clock, its solves' work
+#: priced in CPU seconds (:class:`~asap_dsl.backends.oracle.clock.WorkClock`), for the reason below.
 DEMONSTRATION_STATE_SECONDS = 5.0
 #: On a black box those seconds are the planner's simulated clock, this many simulator steps a
 #: second, not the wall clock: a run's demonstrations, and so the run, are the same on every
@@ -46,8 +48,6 @@ DEMONSTRATION_STATE_SECONDS = 5.0
 #: reports' found 30, and its run stalled at 18% within 50 steps instead of 100%). About the
 #: planner's speed on the 2-core machine of docs/results; a slower one searches longer.
 DEMONSTRATION_PLANNER_STEPS_PER_SECOND = 60_000.0
-#: On known dynamics they are the oracle's simulated clock (its solves' work priced in CPU seconds of
-#: that machine, :class:`~asap_dsl.backends.oracle.clock.WorkClock`), for the same reason; so is the budget.
 
 
 def search_budget_text(prog, budget_seconds: Optional[float], state_seconds: float = DEMONSTRATION_STATE_SECONDS,
@@ -322,9 +322,9 @@ def solve(prog, task: str, count: int, run_seed: int, *, workers: Optional[int] 
           check_stop: Optional[Callable[[], None]] = None, cache: bool = True,
           restarts: Optional[int] = None, wall_capped: bool = False) -> Witnesses:
     """Draw ``count`` initial states of ``task`` (seed :func:`demonstration_seed` of ``run_seed``)
-    and solve them with the oracle or the planner (``workers`` processes; default one per core). With ``budget_seconds``
-    the states are solved a batch at a time and the search stops once the budget is spent (the
-    states not reached are left out). A sequence longer than the task's longest episode is left
+    and solve them with the oracle or the planner (``workers`` processes; default one per core).
+    With ``budget_seconds`` the search stops taking states once the budget is spent (the states
+    not reached are left out). A sequence longer than the task's longest episode is left
     out, as is a state already in the goal; each replay's episode length is drawn from the task's
     range, at least its sequence's length. ``check_stop()`` is called as the oracle progresses (it
     raises to abandon the search). ``restarts``: the oracle's extra initial guesses per horizon
