@@ -49,7 +49,8 @@ def fill_train_subparser(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--imitation", type=weight_float, metavar="W",
                    help="SAC's actor also imitates the oracle's minimum-time paths with this weight (sbx engine, "
                         "known dynamics): the --demonstrations states' paths, or the preset's 2,500 states' within "
-                        "12 minutes, all in the replay buffer from the start (default: 0, none; 1 was measured)")
+                        "1,440 CPU seconds of the oracle (12 minutes on 2 cores), all in the replay buffer from the "
+                        "start (default: 0, none; 1 was measured)")
     p.add_argument("--failed-starts", type=share_float, metavar="P",
                    help="the share of new training episodes that start where an earlier one did not reach "
                         "(default: the preset's, 0.5; 0: none)")
