@@ -4,11 +4,11 @@ A training run's demonstrations must be the same on every machine: on the wall c
 machine solves fewer states within a state's limit and a search's budget, and the run then learns
 from less (the planner's demonstrations showed it: docs/training.md, "The planner's clock is
 simulated"). Under a :class:`WorkClock` the oracle counts what its NLP solves compute, which does
-not depend on the machine, and charges each unit the seconds it took on the 2-core machine of
-docs/results; a slower machine then takes longer and finds the same.
+not depend on the machine, and charges each unit the CPU seconds it took on a 2-core machine like
+that of docs/results; a slower machine then takes longer and finds the same.
 
-Measured there (process time of the search of 8 states per task of 15 tasks: the four benchmarks'
-and the examples'), the three terms priced below came within 0.56-1.24 of the time taken per task
+Measured (process time of the search of 8 states per task of 15 tasks: the four benchmarks' and
+the examples'; a training sweep held the cores meanwhile), the three terms priced below came within 0.56-1.24 of the time taken per task
 (the median 0.95): the callbacks (``n_call`` of IPOPT's functions times their CasADi instructions),
 the linear algebra (iterations times the NLP's variables) and the work around each solve (its
 initial guess, the rollout of its solution, the checks). The bicycle's searches cost about 1.6x
@@ -42,7 +42,7 @@ class Work:
 
 @dataclass(frozen=True)
 class WorkClock:
-    """Seconds charged per unit of :class:`Work` (the 2-core machine of docs/results)."""
+    """CPU seconds charged per unit of :class:`Work` (fitted as the module says)."""
 
     per_instruction: float = 1.2e-8
     per_variable_iteration: float = 6.4e-6
