@@ -405,14 +405,12 @@ def test_on_its_clock_the_search_finds_the_same_on_any_machine_and_any_workers(m
     non-linear: its local minima follow the warm starts)."""
     from asap_dsl.backends.oracle import solver
     from asap_dsl.backends.oracle.nlp import ShootingProblems
+    from asap_dsl.sampling import task_states
 
     monkeypatch.setattr(solver, "BUDGET_CHUNK", 8)
     prog = asap_dsl.load(SPECS.parent / "examples" / "rover_detour.asap")
     clock = O.WorkClock()
-    states = O.Oracle(prog, "reach").task.model
-    from asap_dsl.sampling import task_states
-
-    states = task_states(prog.system, states, 16, seed=5)
+    states = task_states(prog.system, prog.task("reach").model, 16, seed=5)
     budget = 0.5  # a quarter of the 16 states' work: both chunks stop early
     one = O.run(prog, "reach", states=states, workers=1, time_limit=5.0, budget_seconds=budget, clock=clock)
     two = O.run(prog, "reach", states=states, workers=2, time_limit=5.0, budget_seconds=budget, clock=clock)

@@ -182,7 +182,8 @@ def add_late(session, model, steps: int, why: str = NOTHING) -> Optional[dict]:
     session._tell(f"{head}: the {who} on {count:,} initial states of the run's own seed for demonstrations"
                   + search_budget_text(session.prog, budget, per_state, wall) + " ...")
     # On every core (the searchers spawn their workers from a process that runs a learner: forking
-    # JAX's or torch's threads is not safe); their clocks make what they find the same on one. It
+    # JAX's or torch's threads is not safe); their clocks make what they find the same on one core
+    # as on two. It
     # keeps the oracle's second initial guess per horizon, which `--imitation`'s search drops: along
     # a long tour of warm starts, the pendulum's paths without it degraded to 42% within 65 steps on
     # one seed's states (72% solved afresh); with it 520 states in 730 s, 71% within 65, and the run
