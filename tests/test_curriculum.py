@@ -135,7 +135,7 @@ def test_the_default_preset_has_both_rules_sized_to_the_run(rail):
 
     cfg = resolve_config(rail)
     assert cfg.failed_starts == 0.5 and cfg.stall_demonstrations == 300 and cfg.demonstration_share == 0.2
-    assert cfg.demonstration_repeat == 4 and cfg.demonstration_seconds == 180.0
+    assert cfg.demonstration_repeat == 4 and cfg.demonstration_seconds == 450.0  # the oracle's clock
     assert resolve_config(rail, steps=8000).stall_demonstrations == 10  # one state per 800 steps
     assert resolve_config(rail, time_limit=600).demonstration_seconds == 90.0  # 15% of a time limit
     assert resolve_config(rail, algo="ppo").stall_demonstrations == 0 and resolve_config(rail, algo="ppo").failed_starts == 0.5

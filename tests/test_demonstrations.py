@@ -92,6 +92,7 @@ def test_a_black_box_gets_the_planners_sequences_and_the_buffer_holds_their_repl
     prog = asap_dsl.loads(CART % "user_sims:double_integrator", "cart.asap")
     cfg = resolve_config(prog)  # on a black box the default's come at the start, not at a stall
     assert (cfg.demonstrations, cfg.stall_demonstrations) == (300, 0)
+    assert cfg.demonstration_seconds == 180.0  # the planner's budget on its clock: 36 states of 5 s
     w = solve(prog, "reach", 4, 0, workers=2, state_seconds=0.5, cache=False)
     assert w.reason is None and w.solved == len(w.sequences) >= 3
     for x0, seq in zip(w.starts, w.sequences):  # reached, and no later than the minimum's bound allows

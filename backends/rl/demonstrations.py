@@ -33,7 +33,7 @@ from .presets import OFF_POLICY
 
 __all__ = ["DEMONSTRATION_PLANNER_STEPS_PER_SECOND", "DEMONSTRATION_SEED_OFFSET", "DEMONSTRATION_STATE_SECONDS",
            "Demonstrations", "Witnesses", "add_demonstrations", "demonstration_seed", "keep", "longest", "replay",
-           "search_budget_text", "search_count", "searcher", "solve", "store", "unavailable"]
+           "search", "search_budget_text", "search_count", "searcher", "solve", "store", "unavailable"]
 
 #: Added to the run's seed for the demonstrations' initial states (and their episode lengths).
 #: Larger than both fixed seeds, so that no run's seed can map onto them.
@@ -402,6 +402,22 @@ def solve(prog, task: str, count: int, run_seed: int, *, workers: Optional[int] 
         except OSError:  # a cache that cannot be written: the next run searches again
             pass
     return found
+
+
+def search(prog, task: str, count: int, run_seed: int, tell: Callable[[str], None], head: str, *,
+           state_seconds: float, budget_seconds: Optional[float], time_limit: Optional[float],
+           check_stop: Optional[Callable[[], None]] = None, restarts: Optional[int] = None) -> Witnesses:
+    """:func:`solve` as a training run calls it: first one line to its progress, ``head`` (what set
+    the search off) then the searcher, its states and its budget; every core works on it (the
+    searchers spawn their workers from a process that may run a learner: forking JAX's or torch's
+    threads is not safe), and their clocks make what they find the same on one core as on two.
+    A run's ``time_limit`` is the wall clock's: there the budget caps the search's wall time too."""
+    wall_capped = time_limit is not None
+    n = search_count(prog, count, state_seconds, budget_seconds)
+    tell(f"{head}: the {searcher(prog)} on {n:,} initial states of the run's own seed for demonstrations"
+         + search_budget_text(prog, budget_seconds, state_seconds, wall_capped) + " ...")
+    return solve(prog, task, count, run_seed, state_seconds=state_seconds, budget_seconds=budget_seconds,
+                 check_stop=check_stop, wall_capped=wall_capped, restarts=restarts)
 
 
 def _cache_path(prog, task: str, seed: int, count: int, state_seconds: float, budget: Optional[float],

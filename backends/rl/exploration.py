@@ -156,8 +156,7 @@ def add_late(session, model, steps: int, why: str = NOTHING) -> Optional[dict]:
     progress and recorded in the manifest (``late_demonstrations``, the list of firings). Returns
     what was added (:class:`~.demonstrations.Demonstrations` as a dict with ``at_step``, ``why``
     and any new ``gamma``), or None when a stop was requested meanwhile (the rule then stays due)."""
-    from .demonstrations import (DEMONSTRATION_STATE_SECONDS, add_demonstrations, longest, search_budget_text,
-                                 search_count, searcher, solve)
+    from .demonstrations import DEMONSTRATION_STATE_SECONDS, add_demonstrations, longest, search
     from .imitation import IMITATION_STATE_SECONDS, set_imitation
 
     rule: LateDemonstrations = session.late
@@ -170,27 +169,20 @@ def add_late(session, model, steps: int, why: str = NOTHING) -> Optional[dict]:
         if session.stop.requested:
             raise _Stopped
 
-    who = searcher(session.prog)
     began = time.perf_counter()
-    budget = cfg.demonstration_seconds if stalled else cfg.imitation_seconds if imitated else None
-    per_state = (DEMONSTRATION_STATE_SECONDS if stalled else IMITATION_STATE_SECONDS if imitated
-                 else LATE_STATE_SECONDS)
     head = (f"validation stopped improving after {steps:,} steps" if stalled
             else f"no validation has succeeded after {steps:,} steps")
-    count = search_count(session.prog, states, per_state, budget)
-    wall = cfg.time_limit is not None  # a time limit is the wall clock's: it caps the search too
-    session._tell(f"{head}: the {who} on {count:,} initial states of the run's own seed for demonstrations"
-                  + search_budget_text(session.prog, budget, per_state, wall) + " ...")
-    # On every core (the searchers spawn their workers from a process that runs a learner: forking
-    # JAX's or torch's threads is not safe); their clocks make what they find the same on one core
-    # as on two. It
-    # keeps the oracle's second initial guess per horizon, which `--imitation`'s search drops: along
-    # a long tour of warm starts, the pendulum's paths without it degraded to 42% within 65 steps on
-    # one seed's states (72% solved afresh); with it 520 states in 730 s, 71% within 65, and the run
-    # gained 10 / 17 / 8 points (docs/training.md).
+    # It keeps the oracle's second initial guess per horizon, which `--imitation`'s search drops:
+    # along a long tour of warm starts, the pendulum's paths without it degraded to 42% within 65
+    # steps on one seed's states (72% solved afresh); with it 520 states in 730 s, 71% within 65,
+    # and the run gained 10 / 17 / 8 points (docs/training.md).
     try:
-        witnesses = solve(session.prog, cfg.task, states, cfg.seed, state_seconds=per_state,
-                          budget_seconds=budget, check_stop=check_stop, wall_capped=wall)
+        witnesses = search(session.prog, cfg.task, states, cfg.seed, session._tell, head,
+                           state_seconds=(DEMONSTRATION_STATE_SECONDS if stalled else IMITATION_STATE_SECONDS
+                                          if imitated else LATE_STATE_SECONDS),
+                           budget_seconds=(cfg.demonstration_seconds if stalled else cfg.imitation_seconds
+                                           if imitated else None),
+                           time_limit=cfg.time_limit, check_stop=check_stop)
     except _Stopped:
         return None
     if stalled:  # as demonstrations from the start: the long manoeuvres, weighted

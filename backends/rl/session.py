@@ -178,11 +178,10 @@ class Session:
         return VecMonitor(LearnerEnv(ScaledVecEnv(raw, self.scaling), self.cfg.time_limit_terminal))
 
     def witnesses(self) -> Optional[Any]:
-        """A new run's demonstration sequences from the oracle (:mod:`.demonstrations`), before
-        the model is built (its workers are forked: not from a process running JAX). Their wall
-        time counts as the run's, the time limit's included. None where the run has none."""
-        from .demonstrations import (DEMONSTRATION_STATE_SECONDS, longest, search_budget_text, search_count, searcher,
-                                     solve, unavailable)
+        """A new run's demonstration sequences from the oracle or the planner (:mod:`.demonstrations`),
+        before the model is built. Their wall time counts as the run's, the time limit's included.
+        None where the run has none."""
+        from .demonstrations import DEMONSTRATION_STATE_SECONDS, longest, search, unavailable
 
         if self.cfg.demonstrations <= 0:
             why = unavailable(self.prog, self.cfg.algo)
@@ -195,15 +194,11 @@ class Session:
                 raise KeyboardInterrupt
 
         imitated = self.cfg.imitation > 0
-        budget = self.cfg.imitation_seconds if imitated else self.cfg.demonstration_seconds
-        per_state = IMITATION_STATE_SECONDS if imitated else DEMONSTRATION_STATE_SECONDS
-        count = search_count(self.prog, self.cfg.demonstrations, budget_seconds=budget)
-        wall = self.cfg.time_limit is not None  # a time limit is the wall clock's: it caps the search too
-        self._tell(f"demonstrations: the {searcher(self.prog)} on {count:,} initial states of the run's own seed"
-                   + search_budget_text(self.prog, budget, per_state, wall) + " ...")
-        found = solve(self.prog, self.cfg.task, self.cfg.demonstrations, self.cfg.seed, budget_seconds=budget,
-                      check_stop=check_stop, state_seconds=per_state, wall_capped=wall,
-                      **({"restarts": 0} if imitated else {}))
+        found = search(self.prog, self.cfg.task, self.cfg.demonstrations, self.cfg.seed, self._tell, "before training",
+                       state_seconds=IMITATION_STATE_SECONDS if imitated else DEMONSTRATION_STATE_SECONDS,
+                       budget_seconds=self.cfg.imitation_seconds if imitated else self.cfg.demonstration_seconds,
+                       time_limit=self.cfg.time_limit, check_stop=check_stop,
+                       restarts=0 if imitated else None)
         if imitated:  # all of them, as they are: the actor imitates what it sees of the optimum
             return found
         return longest(found, self.cfg.demonstration_share, self.cfg.demonstration_repeat)
