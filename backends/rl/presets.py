@@ -119,10 +119,12 @@ class Preset:
                              black_box: bool = False) -> Optional[float]:
         """The searcher's seconds for a run's demonstrations (``black_box``: the planner's), or with
         ``imitation`` the oracle's for the paths its actor imitates (None: unbounded but per state)."""
-        seconds = (self.black_box_demonstration_seconds
-                   if black_box and self.black_box_demonstration_seconds is not None else self.demonstration_seconds)
-        seconds, share = ((self.imitation_seconds, self.imitation_time_share) if imitation
-                          else (seconds, self.demonstration_time_share))
+        if imitation:
+            seconds, share = self.imitation_seconds, self.imitation_time_share
+        else:
+            planner = self.black_box_demonstration_seconds if black_box else None
+            seconds = self.demonstration_seconds if planner is None else planner
+            share = self.demonstration_time_share
         caps = [c for c in (seconds, None if time_limit is None else share * float(time_limit)) if c is not None]
         return min(caps) if caps else None
 
@@ -206,8 +208,8 @@ DEFAULT = Preset(
     # The oracle's 450 s on its clock (CPU seconds of its solves' work; its chunks start cold where
     # the wall clock's one tour did not) search the 300 states about as the reports' did in 180 s
     # on one core: all of the bicycle's (290 at 300 s) and DC motor's, attitude's seed 0 275
-    # (`reach_avoid`; 200 at 300 s, the reports' 213-279). The planner's 180 s plan 36 states, 5 s each (the swimmer's
-    # reports).
+    # (`reach_avoid`; 200 at 300 s, the reports' 213-279). The planner's 180 s plan 36 states,
+    # 5 s each (the swimmer's reports).
     demonstration_seconds=450.0,
     black_box_demonstration_seconds=180.0,
     demonstration_time_share=0.15,
