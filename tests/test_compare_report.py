@@ -236,13 +236,20 @@ def test_the_results_readme_is_built_from_the_reports_numbers_and_the_papers_cel
     assert "Table 1, bicycle R within 30, ρ reward" not in text  # ours, 90.0, is above the paper's 80.6
     assert "| bicycle | [report](bicycle/report.md) | `bash scripts/results bicycle` | — | — | 30 min | 2 cores |" in text
     assert "`bash scripts/results dc_motor attitude swimmer` makes them" in text
-    # the README's headline: ASAP-Phi (SAC) beside the ceiling and the paper, between its markers only
-    from asap_dsl.backends.compare.paper import HEADLINE_END, HEADLINE_START, main
+    # the README's headline (ASAP-Phi with SAC beside the ceiling and the paper) and its ceilings,
+    # each between its own markers only
+    from asap_dsl.backends.compare.paper import CEILINGS_END, CEILINGS_START, HEADLINE_END, HEADLINE_START, main
 
-    (tmp_path / "README.md").write_text(f"# x\nbefore\n{HEADLINE_START}\nold table\n{HEADLINE_END}\nafter\n")
+    (tmp_path / "README.md").write_text(f"# x\nbefore\n{HEADLINE_START}\nold table\n{HEADLINE_END}\nmiddle\n"
+                                        f"{CEILINGS_START}\nold ceilings\n{CEILINGS_END}\nafter\n")
     assert main([str(tmp_path), "--readme", str(tmp_path / "README.md")]) == 0
     new = (tmp_path / "README.md").read_text()
-    assert new.startswith("# x\nbefore\n") and new.endswith(f"{HEADLINE_END}\nafter\n") and "old table" not in new
+    assert new.startswith("# x\nbefore\n") and new.endswith(f"{CEILINGS_END}\nafter\n")
+    assert f"{HEADLINE_END}\nmiddle\n{CEILINGS_START}\n" in new
+    assert "old table" not in new and "old ceilings" not in new
+    # the ceiling the report stands beside, 10 of 10 states within 30, with its Wilson interval
+    assert "| bicycle | R | oracle (local) | 10 | 30 / 25 / 15 | 100.0 [72.2, 100.0] / " in new
+    assert "| dc_motor | R | not yet made | — | — | — |" in new
     assert "| bicycle | R | 30 / 25 / 15 | 90.0 / " in new and "| 100.0 / 90.0 / 50.0 | 100.0 / 90.0 / 50.0 |" in new
     assert "| dc_motor | R | 30 / 25 / 15 | not yet made | — | — | 97.4 / 95.2 / 89.0 |" in new
     (tmp_path / "README.md").write_text("no markers\n")
