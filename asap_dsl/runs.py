@@ -141,7 +141,7 @@ def read_json(path: PathLike, what: str) -> Any:
         return json.loads(Path(path).read_text(encoding="utf-8"))
     except FileNotFoundError:
         raise RunError(f"{shown(path)}: missing ({what})") from None
-    except (OSError, UnicodeDecodeError, ValueError) as err:
+    except (OSError, UnicodeDecodeError, ValueError, RecursionError) as err:  # RecursionError: nested too deep
         raise RunError(f"{shown(path)}: unreadable {what} ({_short(err)})") from None
 
 
@@ -232,7 +232,7 @@ class RunDir:
                            "`asapc train`?)")
         try:
             data = json.loads(self.manifest_path.read_text(encoding="utf-8"))
-        except (OSError, UnicodeDecodeError, ValueError) as err:
+        except (OSError, UnicodeDecodeError, ValueError, RecursionError) as err:  # RecursionError: nested too deep
             raise RunError(f"{shown(self.manifest_path)}: unreadable manifest ({_short(err)}); replace the run "
                            "with `asapc train ... --force`") from None
         return check_manifest(data, self.manifest_path)

@@ -151,3 +151,24 @@ def test_bad_run_path_or_format_is_one_sentence(runs, tmp_path, capsys):
     blocker.write_text("")
     code, _, err = asapc(capsys, "export", run, "--out", blocker / "p.onnx")
     assert code == 1 and "cannot write" in one_line_error(err)
+
+
+def test_export_never_replaces_a_runs_own_file_or_a_device_and_a_refused_name_is_one_sentence(runs, tmp_path, capsys):
+    run = runs[("sb3", "ppo", "paper", False)]
+    manifest = (run / "run.json").read_bytes()
+    code, _, err = asapc(capsys, "export", run, "--out", run / "run.json")
+    assert code == 1 and "one of the run's own files" in one_line_error(err)
+    assert (run / "run.json").read_bytes() == manifest  # the run is intact
+    code, _, err = asapc(capsys, "export", run, "--out", "/dev/null")
+    assert code == 1 and "not a regular file" in one_line_error(err)
+    # a name the system refuses (too long for the file system) is the user's, not an internal error
+    code, _, err = asapc(capsys, "export", run, "--out", tmp_path / ("a" * 300 + ".onnx"))
+    assert code == 1 and "name too long" in one_line_error(err) and "internal error" not in err
+    # a manifest nested too deep for Python's decoder is a damaged file, said in one sentence
+    import shutil
+
+    copy = tmp_path / "deep"
+    shutil.copytree(run, copy)
+    (copy / "run.json").write_text("[" * 100_000 + "]" * 100_000)
+    code, _, err = asapc(capsys, "export", copy, "--out", tmp_path / "p.onnx")
+    assert code == 1 and "unreadable manifest" in one_line_error(err) and "internal error" not in err

@@ -104,6 +104,10 @@ def _exit_status(err: BaseException) -> int:
         return 130
     if isinstance(err, BrokenPipeError):  # the reader left (`asapc show ... | head`)
         return 0
+    if isinstance(err, OSError) and err.filename is not None and err.strerror:
+        # The system refused a path the user gave (a name too long, no space left, no permission).
+        print(f"asapc: error: {printable(str(err.filename))}: {err.strerror.lower()}", file=sys.stderr)
+        return 1
     if os.environ.get("ASAPC_DEBUG"):
         raise err
     print(f"asapc: internal error: {type(err).__name__}: {err} (set ASAPC_DEBUG=1 for the trace; please report it)",

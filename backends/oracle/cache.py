@@ -72,7 +72,7 @@ def load(source: str, task: str, seed: int, episodes: int, kind: str = "oracle")
     path = cache_path(source, task, seed, episodes, kind)
     try:
         data = json.loads(path.read_text(encoding="utf-8"))
-    except (OSError, ValueError):
+    except (OSError, ValueError, RecursionError):  # RecursionError: nested too deep
         return None  # absent or damaged: recomputed by whoever needs it
     if not isinstance(data, dict) or len(data.get("states") or []) != episodes:
         return None

@@ -357,6 +357,20 @@ def _needs(module: str, package: str) -> None:
         raise RunError(f"exporting to this format needs the {package} package: pip install {package}")
 
 
+def _check_target(target: Path, run: Path) -> None:
+    """Refuse a destination whose replacement loses something: a device or other special file, or
+    one of the run's own files (its model, manifest, checkpoints) rather than an earlier export."""
+    if target.exists() and not target.is_file():
+        raise RunError(f"{target}: not a regular file (a device, pipe or socket); give a file path for --out")
+    try:
+        inside = target.exists() and target.resolve().parent == run.resolve()
+    except OSError:
+        inside = False
+    if inside and target.suffix not in FORMATS.values():
+        raise RunError(f"{target}: one of the run's own files; exporting there would destroy it "
+                       f"(give a path ending in {' or '.join(FORMATS.values())})")
+
+
 def export_run(run: Union[str, Path], fmt: str = "onnx", out: Union[str, Path, None] = None,
                spec: Union[str, Path, None] = None) -> tuple[Path, PolicyFunction]:
     """Export a run's best model (the one ``asapc eval`` evaluates) as ``fmt`` (``onnx`` or
@@ -376,6 +390,7 @@ def export_run(run: Union[str, Path], fmt: str = "onnx", out: Union[str, Path, N
     target = Path(out).expanduser() if out else default_path(run, fmt)
     if target.is_dir():
         target = target / f"policy{FORMATS[fmt]}"
+    _check_target(target, Path(run))
     fn = policy_function(load_run(run, spec))
     data = to_onnx(fn) if fmt == "onnx" else to_torchscript(fn)
     atomic_write(target, data)
