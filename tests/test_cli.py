@@ -166,6 +166,9 @@ def test_only_regular_files_of_bounded_size_are_read(capsys, tmp_path, monkeypat
     assert code == 1 and "larger than the limit of 1 MB" in out and "--max-spec-size" in out
     code, out, _ = run(capsys, "--max-spec-size", "2", "lint", str(big))
     assert code == 0, out
+    with pytest.raises(SystemExit) as exit_:  # a size past any file: a usage error, not an overflow
+        cli.main(["--max-spec-size", "99999999999999999999", "lint", str(big)])
+    assert exit_.value.code == 2 and "at most 1,048,576 MB" in capsys.readouterr().err
 
 
 def test_a_utf8_byte_order_mark_is_skipped(capsys, tmp_path):

@@ -37,7 +37,7 @@ from .. import __version__
 from ..diagnostics import SpecError, printable
 from ..formatting import plural
 from ..limits import LIMITS, available_cores
-from .args import CliError, positive_int
+from .args import CliError, megabytes, positive_int
 from .compare import fill_compare_subparser
 from .eval import fill_eval_subparser
 from .export import fill_export_subparser
@@ -56,7 +56,7 @@ def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="asapc", description="Check, compile and solve .asap specifications of "
                                 "control tasks to fulfil as soon as possible.")
     p.add_argument("-V", "--version", action="version", version=f"asapc {__version__}")
-    p.add_argument("--max-spec-size", type=positive_int, metavar="MB", default=None,
+    p.add_argument("--max-spec-size", type=megabytes, metavar="MB", default=None,
                    help="read spec files up to this size (default 10 MB)")
     p.add_argument("--max-deadline", type=positive_int, metavar="STEPS", default=None,
                    help=f"accept deadlines (episodes, windows, oracle horizons) up to this many steps "

@@ -63,6 +63,14 @@ def positive_int(text: str) -> int:
     return value
 
 
+def megabytes(text: str) -> int:
+    """argparse type: a size in MB, from 1 up to a terabyte (larger is no file a spec could be)."""
+    value = positive_int(text)
+    if value > 1 << 20:
+        raise argparse.ArgumentTypeError(f"expected at most {1 << 20:,} MB (a terabyte), got {value:,}")
+    return value
+
+
 def natural_int(text: str) -> int:
     """argparse type: a whole number of at least 0."""
     value = _whole(text)
