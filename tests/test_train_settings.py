@@ -110,6 +110,9 @@ def test_policy_kwargs_merge_with_the_presets_never_twice(tiny):
     ({"activation_fn": "relux"}, "did you mean 'relu'"),
     ({"optimizer_class": object}, "cannot be stored in the run's manifest"),
     ({"policy_kwargs": [1]}, "must be named values"),
+    ({"net_arch": [0]}, "positive whole numbers"),  # was a ZeroDivisionError inside JAX's initialiser
+    ({"net_arch": {"pi": [64, 64], "qf": [64, -1]}}, "positive whole numbers"),
+    ({"net_arch": [100_000, 100_000]}, "use narrower layers"),  # was JAX out of memory (40 GB)
 ])
 def test_a_setting_the_engine_does_not_take_is_one_sentence(tiny, settings, words):
     with pytest.raises(ConfigError) as err:

@@ -280,9 +280,31 @@ def _check_value(key: str, value: Any) -> None:
         sug = closest(str(value), ACTIVATIONS)
         raise ValueError(f"unknown activation_fn '{value}'" + (f"; did you mean '{sug}'?" if sug else
                                                                 f"; choose {', '.join(ACTIVATIONS)}"))
+    if key == "net_arch":
+        _check_layers(value)
     if key in ("action_noise", "target_entropy_per_action") and value is not None and \
             (isinstance(value, bool) or not isinstance(value, (int, float))):
         raise ValueError(f"{key} takes a number; got {value!r}")
+
+
+#: The most weights between two hidden layers of one network: 10^8 (400 MB in float32, and the
+#: optimiser keeps two more copies), far past any controller's network and inside a machine's memory.
+MAX_LAYER_WEIGHTS = 100_000_000
+
+
+def _check_layers(value: Any) -> None:
+    """``net_arch``: hidden layer widths, a list of positive whole numbers (or named lists, such as
+    ``{pi: [64, 64], qf: [256, 256]}``), small enough to be built."""
+    lists = value.values() if isinstance(value, Mapping) else [value]
+    for widths in lists:
+        if not isinstance(widths, (list, tuple)) or not all(
+                isinstance(w, int) and not isinstance(w, bool) and w >= 1 for w in widths):
+            raise ValueError(f"net_arch = {value!r}: give the hidden layers' widths as positive whole numbers, "
+                             "such as [64, 64] or {pi: [64, 64], qf: [256, 256]}")
+        big = max((a * b for a, b in zip(widths, widths[1:])), default=0)
+        if big > MAX_LAYER_WEIGHTS:
+            raise ValueError(f"net_arch = {value!r}: two consecutive layers need {big:,} weights, more than "
+                             f"{MAX_LAYER_WEIGHTS:,} (400 MB each, before the optimiser's copies); use narrower layers")
 
 
 def split(engine: str, algo: str, hyper: Mapping[str, Any]) -> tuple[dict[str, Any], dict[str, Any]]:
