@@ -360,14 +360,12 @@ def _needs(module: str, package: str) -> None:
 def _check_target(target: Path, run: Path) -> None:
     """Refuse a destination whose replacement loses something: a device or other special file, or
     one of the run's own files (its model, manifest, checkpoints) rather than an earlier export."""
-    if target.exists() and not target.is_file():
-        raise RunError(f"{target}: not a regular file (a device, pipe or socket); give a file path for --out")
-    try:
-        inside = target.exists() and target.resolve().parent == run.resolve()
-    except OSError:
-        inside = False
-    if inside and target.suffix not in FORMATS.values():
-        raise RunError(f"{target}: one of the run's own files; exporting there would destroy it "
+    if not target.exists():
+        return
+    if not target.is_file():
+        raise RunError(f"{shown(target)}: not a regular file (a device, pipe or socket); give a file path for --out")
+    if target.resolve().parent == run.resolve() and target.suffix not in FORMATS.values():
+        raise RunError(f"{shown(target)}: one of the run's own files; exporting there would destroy it "
                        f"(give a path ending in {' or '.join(FORMATS.values())})")
 
 
