@@ -203,7 +203,17 @@ class Numbers:
         if math.isnan(value):
             self.d.add("E117", f"{what} is not a real number (check divisions, logarithms and roots)", e.span)
             raise _Unresolved
+        if math.isinf(value) and not self._reads_infinity(e):
+            self.d.add("E117", f"{what} overflows: its value is beyond the largest number a float holds (±1.8e308)",
+                       e.span, hint="check the powers, exponentials and products of large numbers")
+            raise _Unresolved
         return value
+
+    def _reads_infinity(self, e: ast.Expr) -> bool:
+        """Whether a constant expression reads `inf` (itself or through a constant): then an
+        infinite value is what was written, not an overflow of finite numbers."""
+        return any(isinstance(n, ast.Infinity) or (isinstance(n, ast.Name) and math.isinf(self.s.consts.get(n.id, 0.0)))
+                   for n in nodes_in(e))
 
     def finite_constant(self, e: ast.Expr, what: str) -> float:
         """A constant that a reward computes with: infinity there gives inf - inf = NaN rewards,

@@ -146,6 +146,7 @@ class _Walker(LetWalker):
             self.lets[e.id] = args[0]
             return args[0]
         found = None
+        overflow = False
         try:
             if isinstance(e, ast.Unary):
                 out = -vals[0]
@@ -167,8 +168,14 @@ class _Walker(LetWalker):
                 out = intervals.where(*vals)
             else:
                 out = _UNKNOWN
-        except (ZeroDivisionError, OverflowError, ValueError):
+        except OverflowError:
+            out, overflow = _UNKNOWN, True
+        except (ZeroDivisionError, ValueError):
             out = _UNKNOWN
+        if found is None and not failing and all(_finite_point(v) for v in vals) and (
+                overflow or math.isinf(out.lo) or math.isinf(out.hi)):
+            # Finite numbers in, an infinity out: a constant part of the expression overflows.
+            found = ("this operation overflows: its value is beyond the largest number a float holds (±1.8e308)", True)
         if found is not None:
             self._report(e.span, found)
             return _UNKNOWN, True
@@ -183,6 +190,10 @@ class _Walker(LetWalker):
 
     def value(self, root) -> tuple[Interval, bool]:
         return self.walk(root)
+
+
+def _finite_point(v) -> bool:
+    return isinstance(v, Interval) and v.lo == v.hi and math.isfinite(v.lo)
 
 
 def _test(e, vals: list) -> intervals.Truth:

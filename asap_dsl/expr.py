@@ -290,15 +290,21 @@ def evaluate_constant(expr: ast.Expr, consts: Mapping[str, float]) -> float:
     fn = compile_function([expr], Symbols(consts, {}, {}, {}), _MATH)
     try:
         return float(fn((), ())[0])
-    except (ZeroDivisionError, OverflowError):  # 1/0, 10^400: not a real number; the checker says so
+    except ZeroDivisionError:  # 1/0: not a real number; the checker says so
         return math.nan
+    except OverflowError:  # 10^400 in a product: beyond a float; the checker says so
+        return math.inf
 
 
 def _safe_math(f):
+    """``f`` giving NaN outside its domain (log(-1)) and infinity past a float's range (exp(1000),
+    2^99999), as numpy would, so that the checker can say which of the two happened."""
     def g(*args):
         try:
             return f(*args)
-        except (ValueError, OverflowError, ZeroDivisionError):
+        except OverflowError:
+            return math.inf
+        except (ValueError, ZeroDivisionError):
             return math.nan
     return g
 

@@ -232,6 +232,20 @@ def test_degenerate_numbers_are_diagnostics_not_crashes(text, code):
     assert code in [d.code for d in info.value.diagnostics]
 
 
+@pytest.mark.parametrize("value", ["2^99999", "10^308 * 10", "exp(1000)", "-cosh(800)"])
+def test_a_constant_that_overflows_says_so(value):
+    """Not "not a real number": the value is a number too large for a float (10^308 * 10 was
+    accepted as infinity before)."""
+    with pytest.raises(asap_dsl.SpecError) as info:
+        asap_dsl.loads(f"system A {{ const a = {value}  state x in [0, 1]  dt = 0.1  map {{ x = x }} }}")
+    (d,) = [d for d in info.value.diagnostics if d.code == "E117"]
+    assert "overflows" in d.message, d.message
+
+
+def test_a_constant_may_be_infinite_where_inf_is_written():
+    asap_dsl.loads("system A { const a = -inf  const b = 2 * a  state x in [b, 1] init [0, 1]  dt = 0.1  map { x = x } }")
+
+
 def test_integrator_substeps_are_bounded():
     src = ("system A { state x in [0, 1]  action u in [-1, 1]  dt = 0.1  integrator rk4(substeps = 1e9)  ode { x' = u } }\n"
            "region g = ball([0.5], 0.1)\ntask t { asap in g  deadline 3 }")

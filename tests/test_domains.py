@@ -46,6 +46,15 @@ def test_dynamics_are_checked_with_the_action_bounds():
     assert "E124" not in codes(BASE.replace("y' = u", "y' = sqrt(u + 2)"))
 
 
+@pytest.mark.parametrize("term", ["10^400", "2^2^2^2^2^2", "exp(1000)", "1e308 * 10"])
+def test_a_constant_term_that_overflows_is_an_error_not_a_crash(term):
+    """Found by the hostile review: `2^2^...^2` in the dynamics was lint-clean, and the oracle then
+    stopped on Python's OverflowError (exit 70). Finite numbers in, an infinity out: E124 there."""
+    (d,) = [d for d in diagnostics(BASE.replace("y' = u", f"y' = u + {term}")) if d.code in ("E124", "W209")]
+    assert d.code == "E124" and "overflows" in d.message
+    assert "E124" not in codes(BASE.replace("y' = u", "y' = u + 2^2^2"))
+
+
 def test_a_let_is_reported_once_at_its_definition():
     src = BASE.replace("dt = 0.1", "dt = 0.1\n  let q = sqrt(x)").replace(
         "asap in goal", "asap in goal and q < 1 and q > -1").replace("y' = u", "y' = u + q")
