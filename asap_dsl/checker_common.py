@@ -4,6 +4,7 @@ helpers (see :mod:`asap_dsl.checker`)."""
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from typing import Any, Callable, Iterable, Optional
 
@@ -39,11 +40,69 @@ HYPERPARAMETERS = (
     "tau", "train_freq", "use_expln", "use_rms_prop", "use_sde", "use_sde_at_warmup", "vector_critic_class",
     "vf_coef",
 )
-#: Hyperparameters that are whole numbers (0 or more) wherever they are numbers.
-WHOLE_HYPERPARAMETERS = ("batch_size", "buffer_size", "learning_starts", "train_freq", "gradient_steps", "n_steps",
-                         "n_epochs", "n_critics", "policy_delay", "sde_sample_freq", "stats_window_size",
-                         "target_update_interval")
 TRAIN_SETTINGS = {**RUN_SETTINGS, **{k: "value" for k in HYPERPARAMETERS}}
+
+
+@dataclass(frozen=True)
+class Allowed:
+    """The numbers a setting takes: from ``low`` to ``high`` (each end in or out), whole or not;
+    ``number_only``: a text or a list is no value of it either (``learning_rate = fast``)."""
+
+    low: float
+    high: float = float("inf")
+    low_in: bool = True
+    high_in: bool = True
+    whole: bool = False
+    number_only: bool = True
+
+    def __str__(self) -> str:
+        lo, hi = f"{self.low:g}", f"{self.high:,.0f}" if self.whole else f"{self.high:g}"
+        if self.whole:
+            return f"a whole number from {lo} to {hi}" if self.high < math.inf else f"a whole number, {lo} or more"
+        if self.high == math.inf:
+            return f"a number of {lo} or more" if self.low_in else f"a number above {lo}"
+        if self.low_in and self.high_in:
+            return f"a number from {lo} to {hi}"
+        return f"a number in {'[' if self.low_in else '('}{lo}, {hi}{']' if self.high_in else ')'}"
+
+
+_POSITIVE, _NATURAL, _COUNT = Allowed(0.0, low_in=False), Allowed(0.0), Allowed(1.0, whole=True)
+#: The numbers each setting of a ``train`` block takes where the libraries would take anything
+#: and fail later or train nonsense (γ = 2, a batch of 0, a NaN learning rate): lint checks the
+#: block, and a run its merged settings (the Python API's too) with :func:`setting_problem`.
+#: -1 is stable-baselines3's "as many as the steps collected" (gradient_steps) and "once per
+#: rollout" (sde_sample_freq).
+SETTING_RANGES: dict[str, Allowed] = {
+    "steps": _COUNT, "n_envs": _COUNT, "eval_episodes": _COUNT, "seed": Allowed(0.0, 2.0 ** 32 - 1, whole=True),
+    "gamma": Allowed(0.0, 1.0), "gae_lambda": Allowed(0.0, 1.0), "tau": Allowed(0.0, 1.0, low_in=False),
+    "dropout_rate": Allowed(0.0, 1.0, high_in=False, number_only=False),
+    "learning_rate": _POSITIVE, "qf_learning_rate": _POSITIVE, "clip_range": _POSITIVE, "max_grad_norm": _POSITIVE,
+    "rms_prop_eps": _POSITIVE, "clip_range_vf": Allowed(0.0, low_in=False, number_only=False),
+    "target_kl": Allowed(0.0, low_in=False, number_only=False),
+    "vf_coef": _NATURAL, "target_policy_noise": _NATURAL, "target_noise_clip": _NATURAL, "action_noise": _NATURAL,
+    "ent_coef": Allowed(0.0, number_only=False),  # or "auto", "auto_0.1"
+    "batch_size": _COUNT, "buffer_size": _COUNT, "n_steps": _COUNT, "n_epochs": _COUNT, "n_critics": _COUNT,
+    "policy_delay": _COUNT, "target_update_interval": _COUNT, "stats_window_size": _COUNT,
+    "train_freq": Allowed(1.0, whole=True, number_only=False),  # or [1, "episode"]
+    "learning_starts": Allowed(0.0, whole=True), "gradient_steps": Allowed(-1.0, whole=True),
+    "sde_sample_freq": Allowed(-1.0, whole=True),
+}
+
+
+def setting_problem(name: str, value: Any) -> Optional[str]:
+    """What is wrong with ``value`` for the training setting ``name`` (its :data:`SETTING_RANGES`),
+    in words; None when nothing is, or the setting has no range here."""
+    allowed = SETTING_RANGES.get(name)
+    if allowed is None or value is None:
+        return None
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        return f"'{name}' takes {allowed}, not {value!r}" if allowed.number_only else None
+    x = float(value)
+    inside = (x > allowed.low or (allowed.low_in and x == allowed.low)) and \
+        (x < allowed.high or (allowed.high_in and x == allowed.high))
+    if inside and (not allowed.whole or x.is_integer()):
+        return None
+    return f"'{name}' must be {allowed}, not {value:g}" if isinstance(value, float) else f"'{name}' must be {allowed}, not {value:,}"
 OBSERVE_ITEMS = ("state", "time")
 #: `observe scaling = ...`: the box each state entry of the policy's input is scaled from
 #: (:mod:`asap_dsl.observation`).

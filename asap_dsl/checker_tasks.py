@@ -9,7 +9,7 @@ from typing import Callable, Optional
 
 from . import ast
 from .checker_common import (ALGORITHMS, CONST, OBSERVATION_SCALINGS, OBSERVE_ITEMS, REWARDS, RUN_SETTINGS, TRAIN_SETTINGS,
-                             WHOLE_HYPERPARAMETERS, CheckState, _Unresolved)
+                             CheckState, _Unresolved, setting_problem)
 from .checker_exprs import Conditions, Numbers
 from .diagnostics import Span
 from .diagnostics import closest as _closest
@@ -184,6 +184,10 @@ class TaskChecks:
         out: dict = {}
         errors = 0
         for s in settings:
+            if s.name in out:
+                self.d.add("E117", f"'{s.name}' is given twice in the train block", s.name_span, hint="keep one")
+                errors += 1
+                continue
             if s.name not in TRAIN_SETTINGS:
                 sug = _closest(s.name, TRAIN_SETTINGS)
                 self.d.add("E117", f"unknown training setting '{s.name}'", s.name_span,
@@ -213,13 +217,9 @@ class TaskChecks:
                 raise _Unresolved
             return text
         value = self._train_value(s.value, f"the training setting {s.name}")
-        whole = kind == "int" or s.name in WHOLE_HYPERPARAMETERS
-        if kind == "int" and (isinstance(value, bool) or not isinstance(value, (int, float))):
-            self.d.add("E117", f"'{s.name}' takes a number", s.span)
-            raise _Unresolved
-        if whole and isinstance(value, (int, float)) and not isinstance(value, bool) \
-                and not (float(value).is_integer() and value >= 0):
-            self.d.add("E117", f"'{s.name}' must be a whole number, 0 or more, not {number(value)}", s.span)
+        problem = setting_problem(s.name, value)
+        if problem is not None:
+            self.d.add("E117", problem, s.span)
             raise _Unresolved
         return value
 
@@ -270,6 +270,9 @@ def reward_model(syn: ast.RewardSyntax, numbers: Numbers) -> RewardModel:
     takes = REWARDS[syn.kind]
     params: dict[str, float] = {}
     for s in syn.settings:
+        if s.name in params:
+            d.add("E117", f"reward {syn.kind} is given '{s.name}' twice", s.name_span, hint="keep one")
+            raise _Unresolved
         if s.name not in takes:
             d.add("E117", f"reward {syn.kind} has no setting '{s.name}'", s.name_span,
                   hint=f"it takes {', '.join(takes) or 'no settings'}")

@@ -113,6 +113,10 @@ def test_policy_kwargs_merge_with_the_presets_never_twice(tiny):
     ({"net_arch": [0]}, "positive whole numbers"),  # was a ZeroDivisionError inside JAX's initialiser
     ({"net_arch": {"pi": [64, 64], "qf": [64, -1]}}, "positive whole numbers"),
     ({"net_arch": [100_000, 100_000]}, "use narrower layers"),  # was JAX out of memory (40 GB)
+    ({"gamma": 2}, "'gamma' must be a number from 0 to 1, not 2"),  # trained on silently
+    ({"batch_size": 0}, "'batch_size' must be a whole number, 1 or more"),
+    ({"learning_rate": "nan"}, "'learning_rate' takes a number above 0"),
+    ({"tau": 0}, "'tau' must be a number in (0, 1]"),
 ])
 def test_a_setting_the_engine_does_not_take_is_one_sentence(tiny, settings, words):
     with pytest.raises(ConfigError) as err:
@@ -135,6 +139,32 @@ def test_the_cli_says_a_misspelt_block_setting_in_one_sentence(tmp_path, capsys)
     spec.write_text(_rail("  train { optimize_memory_usage = true }\n"))
     code, out, err = asapc(capsys, "train", spec, "--steps", "100", "--out", tmp_path / "r", "--quiet")
     assert code == 2 and "the sb3 engine's has it" in one_line_error(err)
+
+
+@pytest.mark.parametrize("block, words", [
+    ("gamma = 2", "'gamma' must be a number from 0 to 1, not 2"),
+    ("batch_size = 0", "'batch_size' must be a whole number, 1 or more, not 0"),
+    ("n_envs = 0", "'n_envs' must be a whole number, 1 or more, not 0"),
+    ("learning_rate = nan", "'learning_rate' takes a number above 0, not 'nan'"),
+    ("seed = 1e30", "'seed' must be a whole number from 0 to 4,294,967,295"),
+    ("seed = 1, seed = 2", "'seed' is given twice in the train block"),
+    ("gradient_steps = -2", "'gradient_steps' must be a whole number, -1 or more"),
+])
+def test_lint_checks_the_numbers_of_a_train_block(block, words):
+    """Found by the hostile review: each of these was lint-clean (γ = 2 and a batch of 0 trained
+    on, or failed inside the library)."""
+    with pytest.raises(asap_dsl.SpecError) as info:
+        asap_dsl.loads(_rail(f"  train {{ {block} }}\n"))
+    assert [d.code for d in info.value.diagnostics] == ["E117"] and words in info.value.diagnostics[0].message
+    for fine in ("gamma = 1, gradient_steps = -1, sde_sample_freq = -1, ent_coef = \"auto_0.1\", train_freq = [1, \"episode\"]",
+                 "tau = 1, learning_starts = 0, seed = 4294967295"):
+        asap_dsl.loads(_rail(f"  train {{ {fine} }}\n"))
+
+
+def test_a_reward_setting_given_twice_is_one_diagnostic():
+    with pytest.raises(asap_dsl.SpecError) as info:
+        asap_dsl.loads(_rail("  reward rho(window = 1, window = 2)\n"))
+    assert [d.code for d in info.value.diagnostics] == ["E117"] and "'window' twice" in info.value.diagnostics[0].message
 
 
 def test_a_block_for_another_algorithm_is_left_out_when_the_flag_overrides_it(tiny):

@@ -8,7 +8,7 @@ import math
 from dataclasses import asdict, dataclass, field, fields
 from typing import Any, Mapping, Optional
 
-from asap_dsl.checker_common import ALGORITHMS, RUN_SETTINGS
+from asap_dsl.checker_common import ALGORITHMS, RUN_SETTINGS, setting_problem
 from asap_dsl.observation import observation_sources
 from asap_dsl.rewards import check_reward_fits, resolve_reward
 from asap_dsl.sampling import EVAL_SEED
@@ -189,15 +189,14 @@ def resolve_config(prog, task: Optional[str] = None, *, algo: Optional[str] = No
         raise ConfigError(str(err)) from None
     reward_text = model.text
     hyper = _hyperparameters(p.settings(algo, t.deadline), block, settings, algo, engine, block_algo=block.get("algo") or p.algo)
-    total = int(steps if steps is not None else block.get("steps", p.steps))
-    envs = int(n_envs if n_envs is not None else block.get("n_envs", p.n_envs))
-    run_seed = int(seed if seed is not None else block.get("seed", 0))
-    episodes = int(eval_episodes if eval_episodes is not None else block.get("eval_episodes", 1000))
-    for name, value, least in (("steps", total, 1), ("n_envs", envs, 1), ("eval_episodes", episodes, 1)):
-        if value < least:
-            raise ConfigError(f"{name} must be at least {least}; got {value}")
-    if run_seed < 0:
-        raise ConfigError(f"the seed must be 0 or more; got {run_seed}")
+    given = {"steps": (steps, p.steps), "n_envs": (n_envs, p.n_envs), "eval_episodes": (eval_episodes, 1000),
+             "seed": (seed, 0)}  # an argument, else the block's, else the default
+    run = {k: v if v is not None else block.get(k, default) for k, (v, default) in given.items()}
+    for name, value in run.items():
+        problem = setting_problem(name, value)
+        if problem is not None:
+            raise ConfigError(problem)
+    total, envs, run_seed, episodes = (int(run[k]) for k in ("steps", "n_envs", "seed", "eval_episodes"))
     if time_limit is not None and not (time_limit > 0 and time_limit < float("inf")):
         raise ConfigError(f"the time limit must be a positive number of seconds; got {time_limit}")
     demos = _demonstrations(prog, algo, demonstrations, p.demonstration_states(total))

@@ -25,7 +25,7 @@ from functools import lru_cache
 from pathlib import Path
 from typing import Any, Mapping, Optional
 
-from asap_dsl.checker_common import ALGORITHMS
+from asap_dsl.checker_common import ALGORITHMS, setting_problem
 from asap_dsl.diagnostics import closest
 
 __all__ = ["ACTIVATIONS", "Keywords", "keywords", "merge", "normalise", "split"]
@@ -265,7 +265,8 @@ def check(algo: str, engine: str, hyper: Mapping[str, Any], foreign_ok: frozense
 
 
 def _check_value(key: str, value: Any) -> None:
-    """The values whose form both engines parse alike (the rest their constructors check)."""
+    """The values whose form both engines parse alike, and the numbers' ranges of
+    :data:`~asap_dsl.checker_common.SETTING_RANGES` (the rest their constructors check)."""
     if key == "ent_coef" and isinstance(value, str):
         head, _, init = value.partition("_")
         ok = head == "auto"
@@ -280,9 +281,12 @@ def _check_value(key: str, value: Any) -> None:
         sug = closest(str(value), ACTIVATIONS)
         raise ValueError(f"unknown activation_fn '{value}'" + (f"; did you mean '{sug}'?" if sug else
                                                                 f"; choose {', '.join(ACTIVATIONS)}"))
+    problem = setting_problem(key, value)
+    if problem is not None:
+        raise ValueError(problem)
     if key == "net_arch":
         _check_layers(value)
-    if key in ("action_noise", "target_entropy_per_action") and value is not None and \
+    if key == "target_entropy_per_action" and value is not None and \
             (isinstance(value, bool) or not isinstance(value, (int, float))):
         raise ValueError(f"{key} takes a number; got {value!r}")
 
