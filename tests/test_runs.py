@@ -107,8 +107,8 @@ def _manifest(run: Path, **changes) -> None:
     for k, v in changes.items():
         if v is KeyError:
             m.pop(k)
-        elif k == "n_envs":
-            m["config"]["n_envs"] = v
+        elif k in ("n_envs", "observation_scaling", "algo", "seed"):
+            m["config"][k] = v
         else:
             m[k] = v
     (run / "run.json").write_text(json.dumps(m))
@@ -122,6 +122,11 @@ DAMAGE = {
     "deleted state.pkl": (lambda r: (r / "checkpoint" / "state.pkl").unlink(), "state.pkl: damaged checkpoint (it is missing"),
     "deleted checkpoint model": (lambda r: (r / "checkpoint" / "model.zip").unlink(), "model.zip: damaged checkpoint"),
     "n_envs is text": (lambda r: _manifest(r, n_envs="eight"), "n_envs = 'eight'"),
+    # found by the hostile review: a scaling or an algorithm the tool has no such thing as
+    "observation_scaling unknown": (lambda r: _manifest(r, observation_scaling="banana"),
+                                    "observation_scaling = 'banana', not one of init, state, none"),
+    "algo unknown": (lambda r: _manifest(r, algo="banana"), "algo = 'banana', not one of sac"),
+    "seed negative": (lambda r: _manifest(r, seed=-3), "'seed' must be a whole number from 0"),
     "spec_file is a number": (lambda r: _manifest(r, spec_file=123), "'spec_file' is 123"),
     "a key missing": (lambda r: _manifest(r, task=KeyError), "no 'task'"),
     "manifest cut": (lambda r: _truncate(r / "run.json"), "unreadable manifest"),

@@ -8,13 +8,13 @@ import math
 from dataclasses import asdict, dataclass, field, fields
 from typing import Any, Mapping, Optional
 
-from asap_dsl.checker_common import ALGORITHMS, RUN_SETTINGS, setting_problem
+from asap_dsl.checker_common import ALGORITHMS, OBSERVATION_SCALINGS, RUN_SETTINGS, setting_problem
 from asap_dsl.observation import observation_sources
 from asap_dsl.rewards import check_reward_fits, resolve_reward
 from asap_dsl.sampling import EVAL_SEED
 
 from .presets import OFF_POLICY, discount, get_preset
-from .engines import REFERENCE, choose_engine
+from .engines import ENGINES, REFERENCE, choose_engine
 from .validation import validation_states
 from . import hyper as _hyper
 
@@ -115,6 +115,13 @@ class TrainConfig:
             if f.name in data and want is not None and not (isinstance(value, want) and
                                                            (bool in want or not isinstance(value, bool))):
                 raise ConfigError(f"the stored configuration has {f.name} = {value!r}, not {_TYPE_WORDS[str(f.type)]}")
+        for name, allowed in (("algo", ALGORITHMS), ("engine", ENGINES), ("observation_scaling", OBSERVATION_SCALINGS)):
+            if name in data and data[name] not in allowed:
+                raise ConfigError(f"the stored configuration has {name} = {data[name]!r}, not one of {', '.join(allowed)}")
+        for name in ("steps", "n_envs", "seed", "eval_episodes"):
+            problem = setting_problem(name, data.get(name))
+            if problem is not None:
+                raise ConfigError(f"the stored configuration's {problem}")
         return cls(**{k: data[k] for k in names if k in data})
 
     def failure_reward_at(self, gamma: float) -> Optional[float]:
