@@ -65,8 +65,8 @@ class TaskChecks:
         episode = (deadline, deadline) if deadline else (1, 1)
         if "episode" in clauses:
             lo_d, hi_d = clauses["episode"].value
-            lo = attempt(self.n.positive_steps, lo_d, "the shortest episode", default=1)
-            hi = attempt(self.n.positive_steps, hi_d, "the longest episode", default=1)
+            lo = attempt(self.n.positive_steps, lo_d, "the shortest episode")  # None: reported
+            hi = attempt(self.n.positive_steps, hi_d, "the longest episode")
             if lo and hi and lo > hi:
                 self.d.add("E105", f"the episode range {lo}..{hi} has its lower bound above its upper bound", clauses["episode"].span)
                 errors += 1

@@ -103,13 +103,28 @@ def writing(path: PathLike, exact: bool = False) -> Iterator[None]:
     except OSError as err:
         if not is_write_error(err):
             raise
-        failure = RunWriteError(path if exact else (err.filename or path), _reason(err), code=err.errno)
+        target = path if exact else (err.filename or path)
+        reason = _reason(err)
+        if err.errno in (errno.EEXIST, errno.ENOTDIR):  # a file where a directory of the path should be
+            blocker = _file_in_the_way(path)
+            if blocker is not None:
+                reason = f"{shown(blocker)} is a file, not a directory"
+        failure = RunWriteError(target, reason, code=err.errno)
         # The writer's frames hold its open file: let it go, so that removing the partial file
         # frees the space (a full disk must have room for the manifest's "failed" afterwards).
         traceback.clear_frames(err.__traceback__)
         del err
         gc.collect()
     raise failure from None
+
+
+def _file_in_the_way(path: PathLike) -> Optional[Path]:
+    """The nearest existing parent of ``path`` that is no directory (``plots/x.png`` where
+    ``plots`` is a file: mkdir says "file exists", which tells the user nothing)."""
+    for parent in Path(path).parents:
+        if parent.exists() or parent.is_symlink():
+            return None if parent.is_dir() else parent
+    return None
 
 
 def shown(path: PathLike) -> str:

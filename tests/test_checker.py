@@ -483,3 +483,11 @@ def test_show_of_a_map_without_dt_prints_steps_only(tmp_path, capsys):
     code, out, _ = asapc(capsys, "show", "--format", "json", str(f))
     data = json.loads(out)
     assert data["system"]["dt"] is None and data["tasks"]["t"]["deadline_seconds"] is None
+
+
+def test_an_infinite_longest_episode_is_one_error():
+    """Not also "the episode range 10..1 is reversed" (a default standing in for the bad bound)."""
+    with pytest.raises(asap_dsl.SpecError) as info:
+        asap_dsl.loads("system A { state x in [0, 1]  action u in [-1, 1]  dt = 0.1  map { x = x + u } }\n"
+                       "task t { asap x > 0.9  deadline 30  episode 10..inf }")
+    assert [d.code for d in info.value.diagnostics] == ["E117"]

@@ -9,7 +9,7 @@ import sys
 import pytest
 
 from asap_dsl import cli
-from conftest import ROOT
+from conftest import ROOT, asapc
 
 SPECS = sorted(str(p) for p in (ROOT / "specs").glob("*.asap"))
 EXAMPLE = str(ROOT / "examples" / "double_integrator.asap")
@@ -271,3 +271,16 @@ def test_an_empty_task_is_exit_2_with_one_wording_in_every_command(capsys, tmp_p
         with pytest.raises(SystemExit) as stop:
             raise SystemExit(cli.main(argv))
         assert stop.value.code == 2 and "asapc: error: --task needs a task name" in capsys.readouterr().err, argv
+
+
+def test_an_empty_path_is_exit_2_and_nothing_is_written(capsys, tmp_path, monkeypatch):
+    """Found by the hostile review: `compare --out ""` ran a sweep in the current directory (its
+    lock and runs there), `eval --spec ""` said "this is a directory"."""
+    monkeypatch.chdir(tmp_path)
+    spec = str(ROOT / "specs" / "dc_motor.asap")
+    for argv in (["compare", spec, "--out", ""], ["compare", spec, "--summaries", ""], ["train", spec, "--out", ""],
+                 ["lint", ""], ["show", ""], ["oracle", ""], ["eval", ""], ["export", ""],
+                 ["eval", str(tmp_path), "--spec", ""], ["export", str(tmp_path), "--out", ""], ["tune", spec, "--out", ""]):
+        code, _, err = asapc(capsys, *argv)
+        assert code == 2 and "expected a path, got an empty text" in err, (argv, err)
+    assert list(tmp_path.iterdir()) == []

@@ -83,6 +83,9 @@ CASES = {
     "r-sat-inf": (lambda tmp: spec(tmp, task_clause("r_sat inf")), LINT_SHOW),
     "lambda-inf": (lambda tmp: spec(tmp, task_clause("reward distance(lambda_t = inf)")), LINT_SHOW),
     "inf-minus-inf": (lambda tmp: spec(tmp, edit("y' = u", "y' = u + (inf - inf)")), LINT_SHOW + ORACLE),
+    # 2^2^...^2: lint-clean before, then Python's OverflowError in the oracle (exit 70)
+    "power-tower": (lambda tmp: spec(tmp, edit("y' = u", "y' = u + " + "^".join(["2"] * 50))),
+                    LINT_SHOW + ORACLE + (("lint", "--deep", "--samples", "2", "--deep-seconds", "2"),)),
     "diverging": (lambda tmp: spec(tmp, edit("[-5, 5]", "[-inf, inf] init [-1, 1]", "x' = y", "x' = exp(x) * 1e300")),
                   LINT_SHOW + ORACLE),
     # 4. deep and long expressions

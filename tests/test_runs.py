@@ -277,3 +277,14 @@ def test_specs_with_the_same_file_name_get_distinct_columns(tmp_path):
     assert labels == {str(a): "a/di", str(b): "b/di", str(c): "other"}
     deep = [tmp_path / "x" / "s" / "di.asap", tmp_path / "y" / "s" / "di.asap"]
     assert sorted(column_labels([str(p) for p in deep]).values()) == ["x/s/di", "y/s/di"]
+
+
+def test_a_write_under_a_file_names_the_file_in_the_way(tmp_path):
+    """`eval --plot blocker/x.png` where blocker is a file: "file exists" told the user nothing."""
+    from asap_dsl.runfiles import RunWriteError, writing
+
+    (tmp_path / "blocker").write_text("")
+    target = tmp_path / "blocker" / "sub" / "x.png"
+    with pytest.raises(RunWriteError) as info, writing(target):
+        target.parent.mkdir(parents=True)
+    assert f"{tmp_path / 'blocker'} is a file, not a directory" in str(info.value)

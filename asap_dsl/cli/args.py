@@ -16,7 +16,7 @@ from ..limits import LIMITS, available_cores
 __all__ = ["CliError", "EMPTY_TASK", "InputError", "UsageError", "add_episodes", "add_format", "add_seed",
            "add_task", "add_workers", "check_task", "episodes_int", "names_list", "natural_int", "planner_samples",
            "positive_amount",
-           "positive_int", "share_float", "seed_int", "steps_int", "tolerances_list", "workers"]
+           "path_arg", "positive_int", "share_float", "seed_int", "steps_int", "tolerances_list", "workers"]
 
 
 # ------------------------------------------------------------------------------------ failures
@@ -48,6 +48,14 @@ EMPTY_TASK = "--task needs a task name (leave it out for every task, or the only
 
 
 # ------------------------------------------------------------------------------- argparse types
+def path_arg(text: str) -> str:
+    """argparse type: a file or directory name; an empty one would mean the current directory
+    (`--out ""` wrote a sweep's lock and runs there)."""
+    if text == "":
+        raise argparse.ArgumentTypeError("expected a path, got an empty text")
+    return text
+
+
 def _whole(text: str) -> int:
     try:
         return int(text)

@@ -12,8 +12,8 @@ import sys
 import time
 from typing import Optional, TextIO
 
-from .args import (InputError, UsageError, add_episodes, add_workers, names_list, natural_int, positive_amount,
-                   positive_int, steps_int, tolerances_list, workers)
+from .args import (InputError, UsageError, add_episodes, add_workers, names_list, natural_int, path_arg,
+                   positive_amount, positive_int, steps_int, tolerances_list, workers)
 
 __all__ = ["SweepProgress", "compare_command", "fill_compare_subparser", "ray_address"]
 
@@ -31,7 +31,7 @@ def ray_address(text: str) -> str:
 def fill_compare_subparser(subparsers) -> argparse.ArgumentParser:
     p = subparsers.add_parser("compare", help="train what is missing, evaluate every run on the same states and "
                               "write a report (Markdown and HTML) beside the oracle's ceiling")
-    p.add_argument("files", nargs="+", metavar="FILE", help="the .asap specs")
+    p.add_argument("files", type=path_arg, nargs="+", metavar="FILE", help="the .asap specs")
     p.add_argument("--tasks", type=names_list, help="comma-separated tasks (default: every task of each file)")
     p.add_argument("--rewards", type=names_list, default=["asap", "rho", "distance"],
                    help="comma-separated rewards, Table 1 (default asap,rho,distance)")
@@ -52,8 +52,8 @@ def fill_compare_subparser(subparsers) -> argparse.ArgumentParser:
                    help="run the trainings on a Ray cluster: the head's HOST:PORT, ray://HOST:PORT, or auto")
     p.add_argument("--ray-timeout", type=positive_amount("seconds"), default=30.0, metavar="SECONDS",
                    help="give up joining the Ray cluster after this long (default 30)")
-    p.add_argument("--out", default="reports/compare", help="the report and its runs (default reports/compare)")
-    p.add_argument("--summaries", metavar="DIR",
+    p.add_argument("--out", type=path_arg, default="reports/compare", help="the report and its runs (default reports/compare)")
+    p.add_argument("--summaries", type=path_arg, metavar="DIR",
                    help="keep each finished run's summary (manifest, spec, evaluation, curves) in DIR and read "
                         "them back before training: a sweep whose runs directory is lost goes on from DIR")
     p.add_argument("--lookahead", type=natural_int, default=0, metavar="N",

@@ -19,7 +19,7 @@ from typing import Optional, TextIO
 from ..runfiles import shown
 from ..runs import json_safe
 from ..sampling import EVAL_SEED
-from .args import (InputError, UsageError, add_episodes, add_format, add_seed, add_workers, natural_int,
+from .args import (InputError, UsageError, add_episodes, add_format, add_seed, add_workers, natural_int, path_arg,
                    tolerances_list, workers)
 from .progress import LiveLine, StatesProgress
 
@@ -28,11 +28,11 @@ __all__ = ["eval_command", "fill_eval_subparser"]
 
 def fill_eval_subparser(subparsers) -> argparse.ArgumentParser:
     p = subparsers.add_parser("eval", help="success rates of a trained run beside the oracle's ceiling")
-    p.add_argument("run", metavar="RUN", help="a run directory written by `asapc train`")
+    p.add_argument("run", type=path_arg, metavar="RUN", help="a run directory written by `asapc train`")
     add_episodes(p, "initial states (default 1000)")
     p.add_argument("--tolerances", type=tolerances_list, help="comma-separated steps (default: the task's)")
     add_seed(p, EVAL_SEED, f"seed of the initial states (default {EVAL_SEED})")
-    p.add_argument("--spec", help="evaluate against this spec file (it must be the one the run was trained on)")
+    p.add_argument("--spec", type=path_arg, help="evaluate against this spec file (it must be the one the run was trained on)")
     p.add_argument("--lookahead", type=natural_int, default=0, metavar="N",
                    help="refine the policy on the spec's simulator: candidate actions held for 1, 2, 3, 5, ... "
                         "up to N steps, the policy after them, the soonest reach taken (never later than the "
@@ -44,7 +44,7 @@ def fill_eval_subparser(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--plot", nargs="?", const="", default=None, metavar="PATH",
                    help="draw example trajectories in the state space beside the oracle's, as a PNG "
                         "(default: RUN/plots/trajectories.png)")
-    p.add_argument("--video", metavar="FILE", default=None,
+    p.add_argument("--video", type=path_arg, metavar="FILE", default=None,
                    help="write an MP4 of the policy from the first 3 evaluation states (MuJoCo's renderer "
                         "for the swimmer, the state-space picture otherwise)")
     p.set_defaults(func=eval_command)

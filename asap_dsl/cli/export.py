@@ -12,19 +12,19 @@ import argparse
 import sys
 from typing import Optional, TextIO
 
-from .args import InputError, UsageError
+from .args import InputError, UsageError, path_arg
 
 __all__ = ["export_command", "fill_export_subparser"]
 
 
 def fill_export_subparser(subparsers) -> argparse.ArgumentParser:
     p = subparsers.add_parser("export", help="write a trained run's policy as ONNX or TorchScript (scaling included)")
-    p.add_argument("run", metavar="RUN", help="a run directory written by `asapc train`")
+    p.add_argument("run", type=path_arg, metavar="RUN", help="a run directory written by `asapc train`")
     p.add_argument("--format", choices=("onnx", "torchscript"), default="onnx",
                    help="onnx (onnxruntime, C++ or Python) or torchscript (torch.jit.load, LibTorch); default onnx")
-    p.add_argument("--out", metavar="FILE", default=None,
+    p.add_argument("--out", type=path_arg, metavar="FILE", default=None,
                    help="the file to write (default: RUN/policy.onnx or RUN/policy.pt)")
-    p.add_argument("--spec", help="check the run against this spec file (it must be the one the run was trained on)")
+    p.add_argument("--spec", type=path_arg, help="check the run against this spec file (it must be the one the run was trained on)")
     p.set_defaults(func=export_command)
     return p
 

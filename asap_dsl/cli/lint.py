@@ -15,14 +15,14 @@ from ..diagnostics import SHOWN, Diagnostic, SpecError, format_report, printable
 from ..formatting import plural
 from ..lint import deadline_checks
 from ..program import Program, analyse, read_source
-from .args import add_format, natural_int, positive_amount, positive_int
+from .args import add_format, natural_int, path_arg, positive_amount, positive_int
 
 __all__ = ["fill_lint_subparser", "lint_command"]
 
 
 def fill_lint_subparser(subparsers) -> argparse.ArgumentParser:
     p = subparsers.add_parser("lint", help="check spec files and report every problem")
-    p.add_argument("files", nargs="+", metavar="FILE")
+    p.add_argument("files", type=path_arg, nargs="+", metavar="FILE")
     add_format(p)
     p.add_argument("--strict", action="store_true", help="warnings fail too (exit 1)")
     p.add_argument("--deep", action="store_true", help="also sample initial states and check with the oracle "

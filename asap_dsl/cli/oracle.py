@@ -15,8 +15,8 @@ from typing import Optional, TextIO
 
 from ..formatting import percent, steps_text
 from ..sampling import EVAL_SEED
-from .args import (InputError, add_episodes, add_format, add_seed, add_task, add_workers, check_task, planner_samples,
-                   positive_amount, positive_int, workers)
+from .args import (InputError, add_episodes, add_format, add_seed, add_task, add_workers, check_task, path_arg,
+                   planner_samples, positive_amount, positive_int, workers)
 from .progress import StatesProgress
 
 __all__ = ["add_oracle_arguments", "fill_oracle_subparser", "oracle_command", "render_text"]
@@ -33,7 +33,7 @@ def add_oracle_arguments(p: argparse.ArgumentParser) -> None:
     """The flags of ``asapc oracle``, on any parser."""
     from asap_dsl.backends.oracle import STATE_TIME_LIMIT
 
-    p.add_argument("file", metavar="FILE", help="the .asap spec (an ode or map system)")
+    p.add_argument("file", type=path_arg, metavar="FILE", help="the .asap spec (an ode or map system)")
     add_task(p, "the task (default: every task of the file)")
     add_episodes(p, "initial states, the same as `asapc eval` draws (default 1000)")
     add_workers(p, "processes solving chunks of the states")

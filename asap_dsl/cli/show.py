@@ -18,14 +18,14 @@ from ..observation import describe, shown_scaling
 from ..program import Program, load
 from ..runs import json_safe
 from ..stl import ir
-from .args import add_format, add_task, check_task
+from .args import add_format, add_task, check_task, path_arg
 
 __all__ = ["fill_show_subparser", "show_command", "show_data"]
 
 
 def fill_show_subparser(subparsers) -> argparse.ArgumentParser:
     p = subparsers.add_parser("show", help="print the compiled specification: variables, regions, tasks, bounds, r_sat")
-    p.add_argument("file", metavar="FILE")
+    p.add_argument("file", type=path_arg, metavar="FILE")
     add_task(p, "show only this task")
     add_format(p)
     p.set_defaults(func=show_command)

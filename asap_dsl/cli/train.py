@@ -16,9 +16,8 @@ from typing import Optional, TextIO
 
 from ..formatting import percent
 from ..runfiles import shown
-from .args import (InputError, UsageError, add_seed, add_task, check_task, natural_int, positive_amount, positive_int,
-                   share_float,
-                   steps_int, weight_float)
+from .args import (InputError, UsageError, add_seed, add_task, check_task, natural_int, path_arg, positive_amount,
+                   positive_int, share_float, steps_int, weight_float)
 
 __all__ = ["ConsoleProgress", "fill_train_subparser", "train_command", "validation_text"]
 
@@ -28,7 +27,7 @@ def fill_train_subparser(subparsers) -> argparse.ArgumentParser:
     from asap_dsl.backends.rl.presets import ALGORITHMS, PRESETS
 
     p = subparsers.add_parser("train", help="train a policy for a task (stable-baselines3 or sbx) and evaluate it")
-    p.add_argument("file", metavar="FILE", help="the .asap spec")
+    p.add_argument("file", type=path_arg, metavar="FILE", help="the .asap spec")
     add_task(p, "the task to train (default: the only task of the file)")
     p.add_argument("--algo", choices=ALGORITHMS, help="the algorithm (default: the task's train block, else sac)")
     p.add_argument("--reward", help="asap | rho | rho(window = D) | distance(...) (default: the task's reward)")
@@ -54,7 +53,7 @@ def fill_train_subparser(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--failed-starts", type=share_float, metavar="P",
                    help="the share of new training episodes that start where an earlier one did not reach "
                         "(default: the preset's, 0.5; 0: none)")
-    p.add_argument("--out", help="the run directory (default runs/<spec>-<task>-<algo>-<reward>-s<seed>)")
+    p.add_argument("--out", type=path_arg, help="the run directory (default runs/<spec>-<task>-<algo>-<reward>-s<seed>)")
     p.add_argument("--resume", action="store_true", help="continue the run's checkpoint (same steps, buffer, random state)")
     p.add_argument("--force", action="store_true", help="replace an existing run directory")
     p.add_argument("--no-eval", action="store_true", help="skip the final evaluation")

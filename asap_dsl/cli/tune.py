@@ -14,7 +14,8 @@ import argparse
 import sys
 from typing import Any, Optional, TextIO
 
-from .args import InputError, UsageError, add_seed, add_task, check_task, positive_amount, positive_int, steps_int
+from .args import (InputError, UsageError, add_seed, add_task, check_task, path_arg, positive_amount, positive_int,
+                   steps_int)
 from .compare import ray_address
 
 __all__ = ["TuneProgress", "fill_tune_subparser", "summary_text", "tune_command"]
@@ -26,7 +27,7 @@ def fill_tune_subparser(subparsers) -> argparse.ArgumentParser:
 
     p = subparsers.add_parser("tune", help="search the training hyperparameters of a task (Optuna; on a Ray cluster "
                               "with --ray) and print, or write, the winning train block")
-    p.add_argument("file", metavar="FILE", help="the .asap spec")
+    p.add_argument("file", type=path_arg, metavar="FILE", help="the .asap spec")
     add_task(p, "the task to tune (default: the only task of the file)")
     p.add_argument("--trials", type=positive_int, default=20,
                    help="trials in all, counting those an earlier call finished (default 20)")
@@ -44,7 +45,7 @@ def fill_tune_subparser(subparsers) -> argparse.ArgumentParser:
                         "(a cluster of this machine)")
     p.add_argument("--ray-timeout", type=positive_amount("seconds"), default=30.0, metavar="SECONDS",
                    help="give up joining the Ray cluster after this long (default 30)")
-    p.add_argument("--out", metavar="DIR", help="the tune directory (default runs/tune-<spec>-<task>-<algo>)")
+    p.add_argument("--out", type=path_arg, metavar="DIR", help="the tune directory (default runs/tune-<spec>-<task>-<algo>)")
     p.add_argument("--force", action="store_true", help="replace the tune directory's earlier tuning")
     p.add_argument("--write", action="store_true", help="write the winning block into the task of FILE")
     p.add_argument("--quiet", action="store_true", help="no progress lines")
