@@ -59,6 +59,11 @@ class TaskChecks:
                        "`asapc --max-deadline STEPS` raises the limit")
             errors += 1
             deadline = None
+        if deadline is not None and self.s.dt is not None and not math.isfinite(deadline * self.s.dt):
+            self.d.add("E117", f"a deadline of {deadline:,} steps of dt = {number(self.s.dt)} s is longer than a float "
+                       "holds in seconds", clauses["deadline"].span, hint="give dt in seconds of a physical size")
+            errors += 1
+            deadline = None
         tolerances: tuple[int, ...] = (deadline,) if deadline else ()
         if "tolerances" in clauses:
             tolerances = tuple(attempt(self.n.positive_steps, d, "a tolerance", default=0) for d in clauses["tolerances"].value)

@@ -53,7 +53,8 @@ def _zoh_cached(n: int, m: int, dt: float, A: bytes, B: bytes, c: bytes):
     # exp([[A, B, c], [0, 0, 0]] dt) = [[Ad, Bd, cd], [0, I, 0]]
     M = np.zeros((n + m + 1, n + m + 1))
     M[:n, :n], M[:n, n:n + m], M[:n, n + m] = A_, B_, c_
-    E = scipy.linalg.expm(M * dt)
+    with np.errstate(all="ignore"):  # stiff dynamics over a long dt: inf/NaN, which a step then carries
+        E = scipy.linalg.expm(M * dt)
     return E[:n, :n].copy(), E[:n, n:n + m].copy(), E[:n, n + m].copy()
 
 

@@ -132,6 +132,24 @@ class ExactNeedsLinear(LintRule):
 
 
 @rule
+class ExactStepOverflows(LintRule):
+    code = "E124"  # the step is NaN or infinite for every state, as an operation outside its domain
+
+    def check(self, prog, out):
+        from .dynamics import zero_order_hold
+
+        sys = prog.system
+        if sys.kind != "ode" or sys.integrator.method != "exact" or any(
+                degree(rhs, sys.symbols) > 1 for rhs in sys.equations):
+            return
+        if not all(np.all(np.isfinite(part)) for part in zero_order_hold(sys)):
+            out.add(self.code, f"`integrator exact`: the exact step over dt = {number(sys.dt)} (the matrix exponential "
+                    "of the dynamics) overflows a float: the next state is NaN or infinite for every state",
+                    sys.integrator.span or sys.dynamics_span,
+                    hint="use a smaller dt, or check the dynamics' coefficients")
+
+
+@rule
 class ToleranceAboveDeadline(LintRule):
     code = "E112"
 

@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import importlib
 import os
+import warnings
 from pathlib import Path
 from typing import Optional, Sequence, Union
 
@@ -231,7 +232,10 @@ def write_video(path: Union[str, Path], renderer: Renderer, paths: Sequence[np.n
     except ImportError:
         raise RenderError("--video needs imageio and imageio-ffmpeg: pip install imageio imageio-ffmpeg") from None
     frames = 0
-    with atomic_path(path) as tmp:
+    # imageio starts ffmpeg with fork + exec, and JAX (loaded by the policy) warns at every fork
+    # that a forked child may deadlock: the child execs at once and takes no lock, so it cannot.
+    with warnings.catch_warnings(), atomic_path(path) as tmp:
+        warnings.filterwarnings("ignore", message=r"os\.fork\(\) was called", category=RuntimeWarning)
         writer = imageio.get_writer(str(tmp), format="FFMPEG", fps=renderer.fps, codec="libx264", quality=7,
                                     pixelformat="yuv420p", macro_block_size=16, ffmpeg_log_level="error")
         try:

@@ -128,7 +128,9 @@ def package_versions() -> dict[str, str]:
 def default_run_name(spec_file: PathLike, task: str, algo: str, reward: str, seed: int) -> str:
     """``<spec>-<task>-<algo>-<reward>-s<seed>``; a reward with parameters keeps only its kind
     and a short hash of the parameters, so that the name is a plain directory name."""
-    stem = Path(spec_file).stem
+    # A file name may hold anything but "/" and NUL: control characters and spaces become "_"
+    # (a newline or an escape in a directory name breaks every listing and shell that shows it).
+    stem = re.sub(r"[\x00-\x20\x7f]", "_", Path(spec_file).stem) or "spec"
     kind = reward.split("(")[0].strip()
     if "(" in reward:
         kind += "-" + hashlib.sha256(reward.replace(" ", "").encode()).hexdigest()[:6]

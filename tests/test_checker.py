@@ -223,6 +223,7 @@ def test_distance_reward_needs_a_region_in_asap():
         ("system A { state x in [0, 1]  dt = 10^400  map { x = x } }", "E117"),
         ("system A { state x in [0, 1]  dt = 1e-320  map { x = x } }\ntask t { asap x < 1  deadline 3s }", "E117"),
         ("system A { state x in [0, 1]  dt = 0.1  map { x = x } }\ntask t { asap x < 1  deadline 1e30 }", "E117"),
+        ("system A { state x in [0, 1]  dt = 1e308  map { x = x } }\ntask t { asap x < 1  deadline 30 }", "E117"),
     ],
 )
 def test_degenerate_numbers_are_diagnostics_not_crashes(text, code):

@@ -184,3 +184,12 @@ def test_action_bounds_beyond_float32_are_an_error_not_an_overflow(bounds):
     edge = BASE.replace("action u in [-1, 1]", "action u in [-3.4e38, 3.4e38]")  # float32 holds these
     env = make_vec_env(asap_dsl.loads(edge), num_envs=2, seed=0)
     assert np.isfinite(env.action_space.low).all() and np.isfinite(env.action_space.high).all()
+
+
+def test_an_exact_step_that_overflows_is_an_error_and_the_oracle_says_nan_not_infeasible():
+    """Found by the hostile review: stiff linear dynamics over a long dt under `integrator exact`
+    were lint-clean, and the oracle called every state "infeasible" (its NaN step)."""
+    stiff = BASE.replace("dt = 0.1", "dt = 1000\n  integrator exact").replace("y' = u", "y' = 1e6 * y + u")
+    (d,) = [d for d in diagnostics(stiff) if d.code == "E124"]
+    assert "overflows a float" in d.message
+    assert "E124" not in codes(stiff.replace("dt = 1000", "dt = 1e-7"))

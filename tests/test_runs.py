@@ -288,3 +288,12 @@ def test_a_write_under_a_file_names_the_file_in_the_way(tmp_path):
     with pytest.raises(RunWriteError) as info, writing(target):
         target.parent.mkdir(parents=True)
     assert f"{tmp_path / 'blocker'} is a file, not a directory" in str(info.value)
+
+
+def test_the_default_run_name_has_no_control_characters_or_spaces():
+    """Found by the hostile review: a spec named `esc\\x1b[31mred\\nl.asap` made a run directory
+    with an escape and a newline in its name, printed raw by `train`."""
+    from asap_dsl.runs import default_run_name
+
+    assert default_run_name("odd/esc\x1b[31mred\nl b.asap", "park", "td3", "asap", 1) == "esc_[31mred_l_b-park-td3-asap-s1"
+    assert default_run_name("specs/dc_motor.asap", "reach", "sac", "rho(window = 5)", 0).startswith("dc_motor-reach-sac-rho-")

@@ -15,7 +15,7 @@ import time
 from typing import Optional, TextIO
 
 from ..formatting import percent
-from ..runfiles import shown
+from ..runfiles import command_line, shown
 from .args import (InputError, UsageError, add_seed, add_task, check_task, natural_int, path_arg, positive_amount,
                    positive_int, share_float, steps_int, weight_float)
 
@@ -181,7 +181,7 @@ def train_command(args: argparse.Namespace, out: Optional[TextIO] = None, err: O
                   f"{shown(result.run_dir)}; continue with `{result.resume_command}`\n")
         return 130
     best = result.best
-    out.write(f"trained {result.steps:,} steps in {result.seconds:.1f} s: {result.run_dir}\n")
+    out.write(f"trained {result.steps:,} steps in {result.seconds:.1f} s: {shown(result.run_dir)}\n")
     if best:
         out.write(f"best validation (step {best['steps']:,}): {validation_text(best, None)}\n")
     if result.never_succeeded:
@@ -192,5 +192,5 @@ def train_command(args: argparse.Namespace, out: Optional[TextIO] = None, err: O
     if result.evaluation is not None:
         out.write("\n" + result.evaluation.render() + "\n")
         if not (result.evaluation.oracle or {}).get("bound") and prog.system.kind != "simulator":
-            out.write(f"\nthe oracle's ceiling: asapc eval {result.run_dir}\n")
+            out.write(f"\nthe oracle's ceiling: {command_line(['asapc', 'eval', str(result.run_dir)])}\n")
     return 0

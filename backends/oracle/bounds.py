@@ -58,7 +58,11 @@ class HorizonBounds:
         self.n, self.m = system.n_state, system.n_action
         self.linear = is_linear(system)
         #: ``(A, B, c)`` of the (linear) one-step map, probed through the simulator's step.
-        self.affine = affine_probe(step, self.n, self.m) if self.linear else None
+        with np.errstate(all="ignore"):
+            self.affine = affine_probe(step, self.n, self.m) if self.linear else None
+        if self.affine is not None and not all(np.all(np.isfinite(a)) for a in self.affine):
+            self.affine = None  # a step beyond a float's range (dt = 1e308): the test would exclude on NaN
+            self.linear = False
         self._interval_fns: Optional[tuple] = None
 
     def _coord_affine(self, region: str):
@@ -84,9 +88,12 @@ class HorizonBounds:
             if N % 256 == 255 and time.perf_counter() > until:
                 return N
             if N > 0:
-                free = A @ free + c
-                gens.append(Aj_B)
-                Aj_B = A @ Aj_B
+                with np.errstate(all="ignore"):
+                    free = A @ free + c
+                    gens.append(Aj_B)
+                    Aj_B = A @ Aj_B
+                if not (np.all(np.isfinite(free)) and np.all(np.isfinite(Aj_B))):
+                    return N  # past a float's range the test excludes nothing: N is still a lower bound
             for conj in self.regions_now:
                 if all(self._inside_possible(r, affine[r], free, gens) for r in conj):
                     return N

@@ -143,9 +143,10 @@ class Oracle:
         """Roll ``actions`` out with the simulator's step; ``(trajectory [N+1, n], passes)``."""
         x = np.asarray(x0, float)[None, :]
         traj = [x[0]]
-        for u in np.asarray(actions, float).reshape(-1, self.m):
-            x = self.step_np(x, np.clip(u, self.ulow, self.uhigh)[None, :])
-            traj.append(np.asarray(x[0], float))
+        with np.errstate(all="ignore"):  # a diverging replay becomes inf/NaN and fails the check
+            for u in np.asarray(actions, float).reshape(-1, self.m):
+                x = self.step_np(x, np.clip(u, self.ulow, self.uhigh)[None, :])
+                traj.append(np.asarray(x[0], float))
         tr = np.asarray(traj)
         return tr, self.trajectory_ok(tr)
 
