@@ -246,3 +246,17 @@ print("ok")
     r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300, env=env,
                        cwd=str(tmp_path))
     assert r.returncode == 0 and r.stdout.strip().endswith("ok"), r.stderr
+
+
+def test_an_unusable_cache_directory_leaves_jax_without_a_disk_cache(tmp_path):
+    """Found by the hostile review: with $ASAP_CACHE_DIR a file, JAX warned (with its source
+    path) on every compile; now its programs are compiled each time, silently."""
+    blocker = tmp_path / "a-file"
+    blocker.write_text("")
+    code = ("import os; from asap_dsl.backends.rl.engines import _configure_jax; _configure_jax(); "
+            "print(os.environ.get('JAX_COMPILATION_CACHE_DIR'))")
+    env = {k: v for k, v in os.environ.items() if not k.startswith("JAX_")}
+    for cache, expected in ((blocker, "None"), (tmp_path / "cache", str(tmp_path / "cache" / "jax"))):
+        out = subprocess.run([sys.executable, "-c", code], env=dict(env, ASAP_CACHE_DIR=str(cache)), capture_output=True,
+                             text=True, check=True).stdout.strip()
+        assert out == expected

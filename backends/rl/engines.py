@@ -114,7 +114,16 @@ def _configure_jax() -> None:
     # Building a model compiles some seventy small XLA programs (flax runs every initialiser
     # eagerly), and the first updates and predictions more: about 12 s of CPU per process. From the
     # disk a second start loads them in about 1.5 s. The cache evicts the least recently used.
-    env.setdefault("JAX_COMPILATION_CACHE_DIR", str(cache_dir() / "jax"))
+    if "JAX_COMPILATION_CACHE_DIR" not in env:
+        jax_dir = cache_dir() / "jax"
+        try:
+            jax_dir.mkdir(parents=True, exist_ok=True)
+            usable = os.access(jax_dir, os.W_OK | os.X_OK)
+        except OSError:  # $ASAP_CACHE_DIR a file, a read-only disk: compile each time, without JAX's warnings
+            usable = False
+        if not usable:
+            return
+        env["JAX_COMPILATION_CACHE_DIR"] = str(jax_dir)
     env.setdefault("JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS", "0")
     env.setdefault("JAX_PERSISTENT_CACHE_MIN_ENTRY_SIZE_BYTES", "0")
     env.setdefault("JAX_COMPILATION_CACHE_MAX_SIZE", str(256 << 20))
