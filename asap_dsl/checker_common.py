@@ -103,6 +103,8 @@ def setting_problem(name: str, value: Any) -> Optional[str]:
     if inside and (not allowed.whole or x.is_integer()):
         return None
     return f"'{name}' must be {allowed}, not {value:g}" if isinstance(value, float) else f"'{name}' must be {allowed}, not {value:,}"
+
+
 OBSERVE_ITEMS = ("state", "time")
 #: `observe scaling = ...`: the box each state entry of the policy's input is scaled from
 #: (:mod:`asap_dsl.observation`).
