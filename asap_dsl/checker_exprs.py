@@ -313,7 +313,8 @@ class Numbers:
             else:
                 self.d.add("W209", f"{issue.message} (in {where}): NaN or infinity there ends an episode as "
                            "`non_finite`", issue.span,
-                           hint="narrow the state space, or guard the argument (for example sqrt(abs(x)) or max(x, 1e-9))")
+                           hint=issue.hint or "narrow the state space, or guard the argument (for example "
+                           "sqrt(abs(x)) or max(x, 1e-9))")
 
 
 class Conditions:

@@ -31,6 +31,7 @@ class DomainIssue:
     span: Span
     message: str
     surely: bool
+    hint: Optional[str] = None  # when the checker's general advice does not fit
 
 
 def _show(iv: Interval) -> str:
@@ -133,7 +134,7 @@ class _Walker(LetWalker):
     def _not_arithmetic(self, e) -> list:
         return []  # no enclosure: _combine makes it unknown
 
-    def _report(self, span: Span, found: tuple[str, bool]) -> None:
+    def _report(self, span: Span, found: tuple) -> None:  # (message, surely[, hint])
         key = (span.line, span.column, span.end_line, span.end_column)
         if key not in self._seen:
             self._seen.add(key)
@@ -172,10 +173,17 @@ class _Walker(LetWalker):
             out, overflow = _UNKNOWN, True
         except (ZeroDivisionError, ValueError):
             out = _UNKNOWN
-        if found is None and not failing and all(_finite_point(v) for v in vals) and (
+        if found is None and not failing and all(_finite(v) for v in vals) and (
                 overflow or math.isinf(out.lo) or math.isinf(out.hi)):
-            # Finite numbers in, an infinity out: a constant part of the expression overflows.
-            found = ("this operation overflows: its value is beyond the largest number a float holds (±1.8e308)", True)
+            # Finite numbers in, an infinity out: the operation overflows, for every state when its
+            # operands are constants, for some when they range (exp(1000 * x)).
+            if all(_finite_point(v) for v in vals):
+                found = ("this operation overflows: its value is beyond the largest number a float holds "
+                         "(±1.8e308)", True)
+            else:
+                found = ("this operation may overflow: over the state space its value reaches beyond the "
+                         "largest number a float holds (±1.8e308)", False,
+                         "narrow the state space, or bound what grows (for example exp(min(x, 700)))")
         if found is not None:
             self._report(e.span, found)
             return _UNKNOWN, True
@@ -190,6 +198,10 @@ class _Walker(LetWalker):
 
     def value(self, root) -> tuple[Interval, bool]:
         return self.walk(root)
+
+
+def _finite(v) -> bool:
+    return isinstance(v, Interval) and math.isfinite(v.lo) and math.isfinite(v.hi)
 
 
 def _finite_point(v) -> bool:
