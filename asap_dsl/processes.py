@@ -23,7 +23,7 @@ import time
 from contextlib import contextmanager
 from typing import Callable, Iterator, Optional
 
-__all__ = ["Aborted", "Interrupts", "die_with_parent", "pool_size"]
+__all__ = ["Aborted", "Interrupts", "die_with_parent", "pool_size", "pool_worker"]
 
 STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
 
@@ -149,6 +149,16 @@ def die_with_parent(parent: int, sig: int = signal.SIGKILL, every: float = 1.0) 
                 return
 
     threading.Thread(target=watch, name="die-with-parent", daemon=True).start()
+
+
+def pool_worker(parent: int) -> None:
+    """A ``multiprocessing.Pool`` worker's start (its ``initializer``, with the pool's owner's PID):
+    the pool's terminate (SIGTERM) ends it quietly, whatever handler it inherited; Ctrl-C is the
+    owner's to handle (it terminates the pool); and it dies with the owner, whose ``kill -9``
+    would otherwise leave it waiting on the pool's queue for ever."""
+    signal.signal(signal.SIGTERM, signal.SIG_DFL)
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    die_with_parent(parent)
 
 
 def pool_size(workers: int) -> int:

@@ -253,6 +253,21 @@ def test_kill_9_of_compare_leaves_no_process_and_the_rerun_resumes(spec, tmp_pat
     assert gone(tag) == []
 
 
+def test_kill_9_of_the_oracle_leaves_no_worker(spec, tmp_path, tag):
+    """A worker used to finish its chunk of states (here 1,250, a minute or so) after `asapc oracle`
+    was killed, and only then found nobody to give them to. It dies with the oracle now (the
+    planner's pool starts its workers alike)."""
+    p = Proc("oracle", spec, "--episodes", 20000, "--workers", 2, tag=tag)
+    end = time.time() + 240
+    while time.time() < end and len(tagged(tag)) < 3 and p.p.poll() is None:
+        time.sleep(0.2)
+    assert len(tagged(tag)) >= 3, p.stderr  # asapc and its two workers
+    time.sleep(1)  # into their first chunks
+    os.kill(p.pid, signal.SIGKILL)
+    p.finish()
+    assert gone(tag, timeout=10) == [], "the oracle's workers outlived it"
+
+
 # -------------------------------------------------------------------------------- 7. full disk
 @pytest.fixture()
 def small_disk(tmp_path):

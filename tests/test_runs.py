@@ -159,6 +159,15 @@ def test_a_model_swapped_in_or_deleted_is_refused(base, run, capsys):
     _one_sentence(err, "model.zip: not the model this run wrote (it is missing)")
 
 
+def test_a_manifest_naming_another_algorithm_is_refused(run, capsys):
+    """Found by the hostile review: with run.json's algo edited from sac to td3, TD3's loader took
+    the SAC model and eval reported it as TD3."""
+    _manifest(run, algo="td3")
+    code, _, err = asapc(capsys, "eval", run, "--no-oracle", "--episodes", 10)
+    assert code == 1
+    _one_sentence(err, "model.zip: cannot load the model", "SACPolicy, not the TD3Policy of td3")
+
+
 def test_eval_json_is_checked_when_read(run):
     r = RunDir(run)
     assert r.read_eval()["episodes"] == 20

@@ -113,18 +113,14 @@ def _plan_chunk(payload) -> list[dict]:
     return out
 
 
-def _threads_for_workers() -> None:
-    """One MuJoCo thread per worker process (the workers are the parallelism), unless set; and the
-    worker's signals as the oracle's pool sets them: the pool's terminate (SIGTERM, at the end of
-    every map) ends it quietly, not through the inherited ``asapc`` handler's KeyboardInterrupt (a
-    traceback per worker on stderr), and Ctrl-C is the parent's to handle."""
-    import signal
-
+def _threads_for_workers(parent: int) -> None:
+    """One MuJoCo thread per worker process (the workers are the parallelism), unless set; and
+    the pool worker's signals and death with its owner, as the oracle's pool sets them."""
+    from asap_dsl.processes import pool_worker
     from asap_dsl.sim.mujoco_swimmer import THREADS_ENV
 
     os.environ.setdefault(THREADS_ENV, "1")
-    signal.signal(signal.SIGTERM, signal.SIG_DFL)
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    pool_worker(parent)
 
 
 def _map(payloads: list, workers: int, progress: Optional[Callable[[int], None]]) -> list[PlannedState]:
@@ -143,7 +139,7 @@ def _map(payloads: list, workers: int, progress: Optional[Callable[[int], None]]
         # pthread_cond_destroy for threads that only exist in the parent: for ever (seen on the
         # swimmer's second task; reproduced with a forked pool whose child collects an inherited
         # MujocoSwimmer(nthread=2)). A spawned worker starts clean.
-        with mp.get_context("spawn").Pool(workers, initializer=_threads_for_workers) as pool:
+        with mp.get_context("spawn").Pool(workers, initializer=_threads_for_workers, initargs=(os.getpid(),)) as pool:
             for part in pool.imap_unordered(_plan_chunk, payloads):
                 parts.append(part)
                 if progress is not None:

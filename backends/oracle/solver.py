@@ -30,7 +30,7 @@ search used up its time, :data:`STATE_TIME_LIMIT` by default, before deciding: n
 from __future__ import annotations
 
 import itertools
-import signal
+import os
 import sys
 import time
 from dataclasses import replace
@@ -38,7 +38,7 @@ from typing import Callable, Optional, Sequence
 
 import numpy as np
 
-from asap_dsl.processes import pool_size
+from asap_dsl.processes import pool_size, pool_worker
 from asap_dsl.sampling import EVAL_SEED, task_states
 from asap_dsl.stl import ir
 
@@ -113,13 +113,6 @@ def tighten(prog, reports: Sequence["OracleReport"]) -> dict[str, int]:
 BUDGET_CHUNK = 32
 
 _WORKER_ORACLES: dict = {}  # in a worker process: one Oracle (and its built solvers) per setting
-
-
-def _init_worker() -> None:
-    """A worker's signals: the pool's terminate (SIGTERM) ends it quietly, whatever handler it
-    inherited from the parent, and Ctrl-C is the parent's to handle (it terminates the pool)."""
-    signal.signal(signal.SIGTERM, signal.SIG_DFL)
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
 
 
 def _worker(payload):
@@ -229,7 +222,7 @@ def run(prog, task: Optional[str] = None, episodes: int = 1000, seed: int = EVAL
         learner = "jax" in sys.modules or "torch" in sys.modules
         method = "fork" if "fork" in mp.get_all_start_methods() and not learner else "spawn"
         parts = []
-        with mp.get_context(method).Pool(workers, initializer=_init_worker) as pool:
+        with mp.get_context(method).Pool(workers, initializer=pool_worker, initargs=(os.getpid(),)) as pool:
             pending = iter(payloads)
             running = []
             # Two chunks per worker in flight (one queued behind the one it solves), the next as one ends.

@@ -201,7 +201,9 @@ class SbxEngine(Engine):
         return cls(policy, env, seed=seed, tensorboard_log=tensorboard_log, verbose=0, **kw)
 
     def load(self, algo, path, env=None):
-        return self._model_class(algo).load(str(path), env=env, device="cpu")
+        from .sb3 import load_checked
+
+        return load_checked(self._model_class(algo), algo, path, env=env)
 
     # The keys are raw uint32 pairs (jax.random.PRNGKey). The model's drives the updates and is
     # re-seeded when a model loads; the policy's draw exploration and are pickled with it.

@@ -197,8 +197,21 @@ def build_model(algo: str, env, settings: dict[str, Any], seed: int, tensorboard
                **model_kwargs(algo, env.action_space, settings, "sb3"))
 
 
-def load_model(algo: str, path: Path, env=None):
-    """Load a model saved by :func:`build_model`'s model (a pickle: only from a run directory the
-    user named)."""
-    cls = _algo_class(algo)
+def load_checked(cls, algo: str, path: Path, env=None):
+    """``cls.load(path)`` once the zip's policy is of ``algo``'s kind (a pickle: only from a run
+    directory the user named). A class's loader takes a zip of another algorithm (a hand-edited
+    ``algo`` in run.json) and sbx's would then report a SAC policy as TD3's; TD3 and DDPG, PPO and
+    A2C share a policy class, and the manifest alone tells them apart."""
+    from stable_baselines3.common.save_util import load_from_zip_file
+
+    data, _, _ = load_from_zip_file(path, device="cpu")
+    held, expected = (data or {}).get("policy_class"), cls.policy_aliases["MlpPolicy"]
+    if isinstance(held, type) and not issubclass(held, expected):
+        raise ValueError(f"it holds a {held.__name__}, not the {expected.__name__} of {algo}: its manifest "
+                         "names another algorithm")
     return cls.load(str(path), env=env, device="cpu")
+
+
+def load_model(algo: str, path: Path, env=None):
+    """Load a model saved by :func:`build_model`'s model, refused when it is of another algorithm."""
+    return load_checked(_algo_class(algo), algo, path, env=env)
