@@ -168,6 +168,22 @@ def test_a_manifest_naming_another_algorithm_is_refused(run, capsys):
     _one_sentence(err, "model.zip: cannot load the model", "SACPolicy, not the TD3Policy of td3")
 
 
+def test_an_unwritable_oracle_cache_is_a_warning_not_a_failure(base, run, tmp_path, monkeypatch, capsys):
+    """Found by the hostile review: eval computed the oracle's ceiling, could not cache it, and
+    stopped with exit 1 before showing anything; `asapc oracle` likewise lost what it computed."""
+    blocker = tmp_path / "a-file"
+    blocker.write_text("x")
+    monkeypatch.setenv("ASAP_CACHE_DIR", str(blocker))
+    code, out, err = asapc(capsys, "eval", run, "--episodes", 10)
+    assert code == 0, err
+    assert "oracle's results are not cached" in out and "is a file, not a directory" in out
+    assert "ASAP gap" in out  # the comparison with the ceiling just computed is shown
+    code, out, err = asapc(capsys, "oracle", base[0], "--episodes", 5)
+    assert code == 0, err
+    assert "minimum steps" in out
+    assert err.count("asapc: warning: cannot write") == 1 and "compute them again" in err
+
+
 def test_eval_json_is_checked_when_read(run):
     r = RunDir(run)
     assert r.read_eval()["episodes"] == 20

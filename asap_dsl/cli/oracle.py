@@ -129,6 +129,7 @@ def oracle_command(args: argparse.Namespace, out: Optional[TextIO] = None, err: 
     ``out`` and ``err`` (standard output and error by default) take the report and the progress."""
     import asap_dsl
     from asap_dsl.backends.oracle.cache import store
+    from asap_dsl.runfiles import RunWriteError
     from asap_dsl.backends.oracle.planner import PlannerBudget, PlannerUnsupported
     from asap_dsl.backends.oracle.planning import plan_states, shortest_sequences, tighten_planned
     from asap_dsl.stl import ir
@@ -167,8 +168,6 @@ def oracle_command(args: argparse.Namespace, out: Optional[TextIO] = None, err: 
         reports.append(rep)
     if len(reports) > 1:  # tasks sharing `asap`: make their local minima consistent (replay-verified)
         (tighten_planned if planned else tighten)(prog, reports)
-    for rep in reports:  # `asapc eval` and reports reuse these minima on the same states
-        store(prog.source, rep)
     if args.format == "text":
         for i, rep in enumerate(reports):
             if i:
@@ -178,4 +177,9 @@ def oracle_command(args: argparse.Namespace, out: Optional[TextIO] = None, err: 
         json.dump({"file": args.file, "tasks": [r.to_dict(with_states=args.states, with_actions=args.states)
                                                 for r in reports], "skipped": skipped}, out, indent=2)
         out.write("\n")
+    for rep in reports:  # `asapc eval` and reports reuse these minima on the same states (stored once shown)
+        try:
+            store(prog.source, rep)
+        except RunWriteError as e:
+            err.write(f"asapc: warning: {e}; `asapc eval` and the reports compute them again\n")
     return 0 if reports else 1

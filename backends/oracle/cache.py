@@ -18,6 +18,7 @@ from typing import Optional
 import numpy as np
 
 from asap_dsl.limits import available_cores
+from asap_dsl.runfiles import RunWriteError
 from asap_dsl.runs import atomic_write_json, spec_hash
 
 __all__ = ["CachedOracle", "cache_dir", "cache_path", "load", "load_prefix", "store", "oracle_for"]
@@ -47,6 +48,7 @@ class CachedOracle:
         self.actions = [None if s.get("actions") is None else np.asarray(s["actions"], float) for s in states]
         self.label = data.get("label", "local")
         self.seconds = float(data.get("seconds", 0.0))
+        self.unstored: Optional[str] = None  # why results just computed are not in the cache
 
     @property
     def bound(self) -> str:
@@ -149,5 +151,10 @@ def oracle_for(prog, task: str, seed: int, episodes: int, compute: bool = True,
                      progress=progress)
     except OracleUnsupported:
         return None
-    store(prog.source, report)
+    try:
+        store(prog.source, report)
+    except RunWriteError as err:  # the results stand; only the next caller computes them again
+        hit = CachedOracle(json.loads(json.dumps(report.to_dict(with_states=True, with_actions=True))))
+        hit.unstored = str(err)
+        return hit
     return load(prog.source, task, seed, episodes)

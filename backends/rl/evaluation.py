@@ -321,6 +321,9 @@ def _evaluate(loaded: LoadedRun, episodes: int, tolerances: Optional[Sequence[in
                         f"own, grid actions held {holds} steps, the rest of the last choice), the policy after "
                         f"them; the policy's own kept unless one reaches sooner (one did at {controller.refined:,} "
                         "steps of the states)")
+    if ceiling is not None and ceiling.unstored:
+        ev.notes.append(f"the oracle's results are not cached ({ceiling.unstored}): the next evaluation "
+                        "computes them again")
     if seed == cfg.validation_seed:
         ev.notes.append(f"seed {seed} draws the validation states this run selected its model on: "
                         "these rates flatter it")
