@@ -254,3 +254,15 @@ def test_the_results_readme_is_built_from_the_reports_numbers_and_the_papers_cel
     assert "| dc_motor | R | 30 / 25 / 15 | not yet made | — | — | 97.4 / 95.2 / 89.0 |" in new
     (tmp_path / "README.md").write_text("no markers\n")
     assert main([str(tmp_path), "--readme", str(tmp_path / "README.md")]) == 1
+
+
+def test_a_report_names_its_specs_relative_to_the_working_directory(tmp_path, monkeypatch):
+    """A committed report.json named the snapshot's absolute directory (/work/exp/snapK/specs/...)."""
+    from asap_dsl.backends.compare.report import _portable
+
+    (tmp_path / "specs").mkdir()
+    monkeypatch.chdir(tmp_path)
+    assert _portable(str(tmp_path / "specs" / "bicycle.asap")) == "specs/bicycle.asap"
+    assert _portable("specs/bicycle.asap") == "specs/bicycle.asap"
+    elsewhere = str(tmp_path.parent / "other.asap")
+    assert _portable(elsewhere) == elsewhere

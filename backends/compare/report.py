@@ -394,12 +394,22 @@ def summary(data: ReportData) -> dict:
                         "gap": {col.name: m.gap(col.name) for col in data.columns}})
         return out
 
-    columns = [{"name": c.name, "spec": c.spec, "task": c.task, "tolerances": list(c.tolerances),
+    columns = [{"name": c.name, "spec": _portable(c.spec), "task": c.task, "tolerances": list(c.tolerances),
                 "deadline": c.deadline, "bound": c.bound, "black_box": c.black_box,
                 "ceiling": {str(T): r for T, r in (c.ceiling or {}).items()}} for c in data.columns]
     return {"title": data.title, "columns": columns, "table1": rows(data.table1, ()),
             "table2": rows(data.table2, data.table2_tolerances), "table2_tolerances": list(data.table2_tolerances),
             "runs": data.runs, "versions": data.versions, "seconds": data.seconds, "notes": list(data.notes)}
+
+
+def _portable(spec: str) -> str:
+    """The spec's path relative to the working directory when it lies under it (``specs/x.asap``
+    from a checkout, wherever the checkout is), as given otherwise: a committed report names no
+    machine's directories."""
+    try:
+        return Path(spec).resolve().relative_to(Path.cwd().resolve()).as_posix()
+    except (ValueError, OSError):
+        return str(spec)
 
 
 def write(out_dir: Path, data: ReportData) -> dict[str, Path]:
