@@ -638,3 +638,39 @@ def test_oracle_through_a_conditional_and_clip(x0, steps):
     where the switch is crossed once on the way (-3 -> -1 -> 1 -> 2 takes 3 steps, not 5)."""
     r = O.Oracle(asap_dsl.loads(GEAR), "up", time_limit=10.0).solve([x0])
     assert r.status == "solved" and r.verified and r.steps == steps
+
+
+def test_an_interrupted_search_resumes_where_it_stopped(tmp_path, monkeypatch):
+    """The ceiling of 1000 attitude states takes 20 minutes: a Ctrl-C (or a killed sweep) used to
+    lose all of it. Each finished chunk is kept now, and the next search of the same states
+    begins with them; the cache entry replaces the partial file."""
+    from conftest import RAIL
+
+    monkeypatch.setenv("ASAP_CACHE_DIR", str(tmp_path / "cache"))
+    prog = asap_dsl.loads(RAIL)
+    seen: list[int] = []
+
+    def interrupt_at_the_22nd_state(k: int) -> None:
+        seen.append(k)
+        if sum(seen) >= 22:
+            raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):  # 8 chunks of 5 states: 4 ended, the 5th cut
+        O.solve_seeded(prog, "go", 2024, 40, workers=1, progress=interrupt_at_the_22nd_state)
+    partial = O.cache_path(prog.source, "go", 2024, 40).with_suffix(".partial.json")
+    kept = json.loads(partial.read_text())
+    assert len(kept["results"]) == 20
+    told: list[int] = []
+    resumed = O.solve_seeded(prog, "go", 2024, 40, workers=1, progress=told.append)
+    assert told[0] == 20 and sum(told) == 40  # 20 kept, 20 solved
+    fresh = O.run(prog, "go", episodes=40, workers=1)
+    np.testing.assert_array_equal(resumed.steps, fresh.steps)
+    assert [r.index for r in resumed.results] == list(range(40))
+    assert all(r.trajectory is not None for r in resumed.results if r.actions is not None)
+    O.store(prog.source, resumed)
+    assert not partial.exists() and O.load(prog.source, "go", 2024, 40) is not None
+    # what a search with another time limit kept is not used
+    partial.write_text(json.dumps({**kept, "time_limit": 1.0}))
+    told.clear()
+    O.solve_seeded(prog, "go", 2024, 40, workers=1, progress=told.append)
+    assert told == [1] * 40

@@ -128,12 +128,12 @@ def oracle_command(args: argparse.Namespace, out: Optional[TextIO] = None, err: 
     operator that stops it), 2 on a misused flag (an unknown or empty ``--task`` included).
     ``out`` and ``err`` (standard output and error by default) take the report and the progress."""
     import asap_dsl
-    from asap_dsl.backends.oracle.cache import store
+    from asap_dsl.backends.oracle.cache import solve_seeded, store
     from asap_dsl.runfiles import RunWriteError
     from asap_dsl.backends.oracle.planner import PlannerBudget, PlannerUnsupported
     from asap_dsl.backends.oracle.planning import plan_states, shortest_sequences, tighten_planned
     from asap_dsl.stl import ir
-    from asap_dsl.backends.oracle.solver import OracleUnsupported, run, tighten
+    from asap_dsl.backends.oracle.solver import OracleUnsupported, tighten
 
     out = out or sys.stdout
     err = err or sys.stderr
@@ -157,8 +157,8 @@ def oracle_command(args: argparse.Namespace, out: Optional[TextIO] = None, err: 
                 rep = plan_states(prog, t, episodes=args.episodes, seed=args.seed, workers=n_workers, budget=budget,
                                   time_limit=args.state_time_limit, progress=progress, warm=warm)
             else:
-                rep = run(prog, t, episodes=args.episodes, seed=args.seed, workers=n_workers,
-                          time_limit=args.state_time_limit, progress=progress)
+                rep = solve_seeded(prog, t, args.seed, args.episodes, n_workers, time_limit=args.state_time_limit,
+                                   progress=progress)
         except (OracleUnsupported, PlannerUnsupported) as e:
             skipped.append({"task": t, "reason": str(e)})
             err.write(f"asapc: {'error' if args.task else 'note'}: {args.file}: task {t} is not solved: {e}\n")

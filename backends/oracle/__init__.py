@@ -7,7 +7,7 @@ the drivers over many states (solver), the results (results) and their cache.
 """
 
 from .bounds import HorizonBounds
-from .cache import CachedOracle, cache_dir, cache_path, load, oracle_for, store
+from .cache import CachedOracle, cache_dir, cache_path, load, oracle_for, solve_seeded, store
 from .clock import Work, WorkClock
 from .goals import MAX_ALTERNATIVES, Goals, OracleUnsupported
 from .nlp import ShootingProblems
@@ -18,4 +18,4 @@ from .solver import DEEP_TASK_SECONDS, deadline_infeasible, run, tighten
 __all__ = ["CachedOracle", "DEEP_TASK_SECONDS", "Goals", "HorizonBounds", "MAX_ALTERNATIVES", "Oracle",
            "OracleReport", "OracleUnsupported", "STATE_TIME_LIMIT", "ShootingProblems", "StateResult", "Work",
            "WorkClock", "cache_dir", "cache_path", "deadline_infeasible", "load", "nearest_neighbour_order",
-           "oracle_for", "run", "store", "tighten"]
+           "oracle_for", "run", "solve_seeded", "store", "tighten"]

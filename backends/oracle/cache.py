@@ -5,7 +5,9 @@
 the first one to need them stores them here and the others read them back. The cache lives in
 ``$ASAP_CACHE_DIR`` (default ``$XDG_CACHE_HOME/asap-dsl`` or ``~/.cache/asap-dsl``), one JSON file
 per (spec hash, task, seed, episodes), written atomically. A changed spec has another hash, so a
-stale entry is never read.
+stale entry is never read. A search under way keeps each finished chunk of states in a
+``.partial.json`` beside its entry, so that an interrupted one (Ctrl-C, a killed process) resumes
+where it stopped; the entry replaces it when done.
 """
 
 from __future__ import annotations
@@ -21,7 +23,7 @@ from asap_dsl.limits import available_cores
 from asap_dsl.runfiles import RunWriteError
 from asap_dsl.runs import atomic_write_json, spec_hash
 
-__all__ = ["CachedOracle", "cache_dir", "cache_path", "load", "load_prefix", "store", "oracle_for"]
+__all__ = ["CachedOracle", "cache_dir", "cache_path", "load", "load_prefix", "oracle_for", "solve_seeded", "store"]
 
 
 def cache_dir() -> Path:
@@ -108,10 +110,68 @@ def load_prefix(source: str, task: str, seed: int, states: np.ndarray, kind: str
 
 def store(source: str, report) -> Path:
     """Store an :class:`~asap_dsl.backends.oracle.solver.OracleReport` computed on the seeded states
-    (the planner's apart from the oracle's)."""
+    (the planner's apart from the oracle's); the partial results of its search go."""
     path = cache_path(source, report.task, report.seed, len(report.results), _kind(report.label))
     atomic_write_json(path, report.to_dict(with_states=True, with_actions=True))
+    _partial_path(source, report.task, report.seed, len(report.results)).unlink(missing_ok=True)
     return path
+
+
+def _partial_path(source: str, task: str, seed: int, episodes: int) -> Path:
+    return cache_path(source, task, seed, episodes).with_suffix(".partial.json")
+
+
+def _read_partial(path: Path, states: np.ndarray, time_limit: float) -> tuple[list, float]:
+    """The results kept by an interrupted search of these states with this time limit, and its
+    seconds; nothing when the file is absent, damaged or of other states."""
+    from .results import StateResult
+
+    try:
+        data = json.loads(path.read_text(encoding="utf-8"))
+        if data.get("time_limit") != time_limit:
+            return [], 0.0
+        done = [StateResult.from_dict(d) for d in data["results"]]
+        for r in done:
+            if not (0 <= int(r.index) < len(states) and np.array_equal(r.x0, states[r.index])):
+                return [], 0.0
+        return done, float(data.get("seconds", 0.0))
+    except (OSError, ValueError, TypeError, KeyError, AttributeError, IndexError, RecursionError):
+        return [], 0.0
+
+
+def solve_seeded(prog, task: str, seed: int, episodes: int, workers: int, time_limit: Optional[float] = None,
+                 progress=None):
+    """:func:`~asap_dsl.backends.oracle.solver.run` on the seeded states, resumable: each chunk of
+    states is kept as it ends (``.partial.json`` beside the cache entry), and a search of the same
+    states and time limit begins with what an interrupted one kept. An unwritable cache only
+    costs the resumption. ``progress(k)`` is told of the states kept from before as well."""
+    import time
+
+    from asap_dsl.sampling import task_states
+
+    from .search import STATE_TIME_LIMIT
+    from .solver import run
+
+    limit = STATE_TIME_LIMIT if time_limit is None else float(time_limit)
+    states = task_states(prog.system, prog.task(task).model, episodes, seed=seed)
+    path = _partial_path(prog.source, task, seed, episodes)
+    done, before = _read_partial(path, states, limit)
+    if done and progress is not None:
+        progress(len(done))
+    kept, start = list(done), time.perf_counter()
+
+    def keep(part) -> None:
+        kept.extend(part)
+        try:
+            atomic_write_json(path, {"time_limit": limit, "seconds": before + time.perf_counter() - start,
+                                     "results": [r.to_dict(with_actions=True) for r in kept]})
+        except RunWriteError:
+            pass
+
+    report = run(prog, task, episodes=episodes, seed=seed, workers=workers, time_limit=limit, progress=progress,
+                 done=done, on_part=keep)
+    report.seconds += before
+    return report
 
 
 def _kind(label: str) -> str:
@@ -144,11 +204,11 @@ def oracle_for(prog, task: str, seed: int, episodes: int, compute: bool = True,
         return hit
     if started is not None:
         started()
-    from .solver import OracleUnsupported, run
+    from .solver import OracleUnsupported
 
     try:
-        report = run(prog, task, episodes=episodes, seed=seed, workers=available_cores() if workers is None else workers,
-                     progress=progress)
+        report = solve_seeded(prog, task, seed, episodes, available_cores() if workers is None else workers,
+                              progress=progress)
     except OracleUnsupported:
         return None
     try:

@@ -136,7 +136,8 @@ def run(prog, task: Optional[str] = None, episodes: int = 1000, seed: int = EVAL
         restarts: Optional[int] = None, interval_bound: bool = True,
         time_limit: float = STATE_TIME_LIMIT, progress: Optional[Callable[[int], None]] = None,
         budget_seconds: Optional[float] = None, clock: Optional[WorkClock] = None,
-        wall_seconds: Optional[float] = None) -> OracleReport:
+        wall_seconds: Optional[float] = None, done: Sequence[StateResult] = (),
+        on_part: Optional[Callable[[list[StateResult]], None]] = None) -> OracleReport:
     """The oracle's minimum time from each of ``episodes`` seeded initial states (or the given
     ``states``) of one task.
 
@@ -168,6 +169,10 @@ def run(prog, task: Optional[str] = None, episodes: int = 1000, seed: int = EVAL
         core the search takes longer, it does not find less).
     :param wall_seconds: a cap on the wall clock as well: no state is begun after it (a run's time
         limit).
+    :param done: results of some of these states already found (an interrupted search's, by
+        index): not solved again, and in the report as they are.
+    :param on_part: called with each chunk's results as it ends (the caller keeps them, so that an
+        interrupted search resumes: :func:`~asap_dsl.backends.oracle.cache.oracle_for`).
     :return: the per-state results (in input order) and the ceiling per tolerance.
     :raises OracleUnsupported: a black-box system, or a task outside what the oracle solves.
     :raises KeyError: an unknown task.
@@ -190,26 +195,30 @@ def run(prog, task: Optional[str] = None, episodes: int = 1000, seed: int = EVAL
     def spent() -> bool:
         return until is not None and time.time() >= until
 
-    order = nearest_neighbour_order(states, prog.system)
+    done = list(done)
+    known = {r.index for r in done}
+    order = [i for i in nearest_neighbour_order(states, prog.system) if i not in known]
     if clock is not None or until is not None:  # chunks of the tour, taken until the wall's budget is spent
         chunks = [order[lo:lo + BUDGET_CHUNK] for lo in range(0, len(order), BUDGET_CHUNK)]
     else:
-        pieces = max(1, min(len(states), 8 * int(workers)))
+        pieces = max(1, min(len(order), 8 * int(workers)))
         chunks = [list(c) for c in np.array_split(np.asarray(order), pieces) if len(c)]
     # On the clock each chunk has its states' share of the budget (whoever solves it, whenever).
     shares = [None if clock is None or budget_seconds is None else budget_seconds * len(c) / len(states)
               for c in chunks]
     workers = pool_size(max(1, min(int(workers), len(chunks))))
 
-    if workers == 1 and until is None and clock is None:
+    if workers == 1 and until is None and clock is None and not done and on_part is None:
         results = oracle.solve_many(states, progress=progress)
     elif workers == 1:
-        by_index = {}
+        by_index = {r.index: r for r in done}
         for chunk, share in zip(chunks, shares):
             if spent():
                 break
-            for r in oracle.solve_many(states[chunk], indices=chunk, progress=progress, until=until, budget=share):
-                by_index[r.index] = r
+            part = oracle.solve_many(states[chunk], indices=chunk, progress=progress, until=until, budget=share)
+            by_index.update((r.index, r) for r in part)
+            if on_part is not None:
+                on_part(part)
         results = [by_index[i] for i in sorted(by_index)]
     else:
         import multiprocessing as mp
@@ -231,16 +240,19 @@ def run(prog, task: Optional[str] = None, episodes: int = 1000, seed: int = EVAL
             while running:
                 part = running.pop(0).get()
                 parts.append(part)
+                if on_part is not None:
+                    on_part([StateResult.from_dict(d) for d in part])
                 if progress is not None:
                     progress(len(part))
                 nxt = None if spent() else next(pending, None)
                 if nxt is not None:
                     running.append(pool.apply_async(_worker, (nxt,)))
-        by_index = {d["index"]: StateResult.from_dict(d) for part in parts for d in part}
+        by_index = {r.index: r for r in done}
+        by_index.update((d["index"], StateResult.from_dict(d)) for part in parts for d in part)
         results = [by_index[i] for i in sorted(by_index)]
-        for r in results:  # trajectories are not shipped back: replay here (cheap)
-            if r.actions is not None:
-                r.trajectory, _ = oracle.replay(r.x0, r.actions)
+    for r in results:  # trajectories are neither shipped back nor kept: replay here (cheap)
+        if r.actions is not None and r.trajectory is None:
+            r.trajectory, _ = oracle.replay(r.x0, r.actions)
     return OracleReport(prog.file, oracle.task_name, prog.system.name, oracle.label, oracle.deadline,
                         oracle.tolerances, used_seed, results, time.perf_counter() - start, workers)
 
