@@ -129,11 +129,11 @@ def oracle_command(args: argparse.Namespace, out: Optional[TextIO] = None, err: 
     ``out`` and ``err`` (standard output and error by default) take the report and the progress."""
     import asap_dsl
     from asap_dsl.backends.oracle.cache import solve_seeded, store
-    from asap_dsl.runfiles import RunWriteError
     from asap_dsl.backends.oracle.planner import PlannerBudget, PlannerUnsupported
     from asap_dsl.backends.oracle.planning import plan_states, shortest_sequences, tighten_planned
     from asap_dsl.stl import ir
     from asap_dsl.backends.oracle.solver import OracleUnsupported, tighten
+    from asap_dsl.runfiles import RunWriteError
 
     out = out or sys.stdout
     err = err or sys.stderr

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import json
 import os
+import time
 from pathlib import Path
 from typing import Optional
 
@@ -145,8 +146,6 @@ def solve_seeded(prog, task: str, seed: int, episodes: int, workers: int, time_l
     states is kept as it ends (``.partial.json`` beside the cache entry), and a search of the same
     states and time limit begins with what an interrupted one kept. An unwritable cache only
     costs the resumption. ``progress(k)`` is told of the states kept from before as well."""
-    import time
-
     from asap_dsl.sampling import task_states
 
     from .search import STATE_TIME_LIMIT
@@ -214,7 +213,7 @@ def oracle_for(prog, task: str, seed: int, episodes: int, compute: bool = True,
     try:
         store(prog.source, report)
     except RunWriteError as err:  # the results stand; only the next caller computes them again
-        hit = CachedOracle(json.loads(json.dumps(report.to_dict(with_states=True, with_actions=True))))
+        hit = CachedOracle(report.to_dict(with_states=True, with_actions=True))
         hit.unstored = str(err)
         return hit
     return load(prog.source, task, seed, episodes)

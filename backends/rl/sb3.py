@@ -202,10 +202,13 @@ def load_checked(cls, algo: str, path: Path, env=None):
     directory the user named). A class's loader takes a zip of another algorithm (a hand-edited
     ``algo`` in run.json) and sbx's would then report a SAC policy as TD3's; TD3 and DDPG, PPO and
     A2C share a policy class, and the manifest alone tells them apart."""
-    from stable_baselines3.common.save_util import load_from_zip_file
+    import zipfile
 
-    data, _, _ = load_from_zip_file(path, device="cpu")
-    held, expected = (data or {}).get("policy_class"), cls.policy_aliases["MlpPolicy"]
+    from stable_baselines3.common.save_util import json_to_data
+
+    with zipfile.ZipFile(path) as z:  # its "data" entry alone: the parameters are read once, by the load
+        data = json_to_data(z.read("data").decode())
+    held, expected = data.get("policy_class"), cls.policy_aliases["MlpPolicy"]
     if isinstance(held, type) and not issubclass(held, expected):
         raise ValueError(f"it holds a {held.__name__}, not the {expected.__name__} of {algo}: its manifest "
                          "names another algorithm")
