@@ -312,3 +312,55 @@ def patch_demo_bc(beta: float, q_filter: bool, batch: int = 256) -> dict:
 
     engines.SbxEngine._model_class = _model_class
     return stats
+
+
+def patch_actor_ema(tau: float) -> dict:
+    """Validation (and so the kept model) judges an exponential moving average of the actor's
+    parameters instead of the latest ones: after every call of SAC's ``train`` (four gradient steps
+    in the default) the average moves ``tau`` of the way to the current parameters. SAC's actor
+    keeps moving on a plateau; its average is a smoother law (Polyak averaging of the iterates).
+    The learner itself still acts and learns with its latest parameters. Returns the counters."""
+    import jax
+
+    from asap_dsl.backends.rl import engines
+    from asap_dsl.backends.rl import session as session_module
+
+    stats = {"updates": 0, "tau": tau}
+    step = jax.jit(lambda e, x: jax.tree_util.tree_map(lambda a, b: (1.0 - tau) * a + tau * b, e, x))
+    orig_model_class = engines.SbxEngine._model_class
+    made: dict = {}
+
+    def averaged(cls):
+        def train(self, gradient_steps: int, batch_size: int) -> None:
+            cls.train(self, gradient_steps, batch_size)
+            params = self.policy.actor_state.params
+            ema = getattr(self, "_ema_params", None)
+            self._ema_params = params if ema is None else step(ema, params)
+            stats["updates"] += 1
+
+        return type("AveragedSAC", (cls,), {"train": train})
+
+    def _model_class(self, algo):
+        cls = orig_model_class(self, algo)
+        if algo != "sac":
+            return cls
+        if cls not in made:
+            made[cls] = averaged(cls)
+        return made[cls]
+
+    engines.SbxEngine._model_class = _model_class
+    orig_validate = session_module.Session.validate
+
+    def validate(self, model, steps, logger=None):
+        ema = getattr(model, "_ema_params", None)
+        if ema is None:
+            return orig_validate(self, model, steps, logger)
+        live = model.policy.actor_state
+        model.policy.actor_state = live.replace(params=ema)
+        try:
+            return orig_validate(self, model, steps, logger)
+        finally:  # the live parameters back, whatever else the validation's rules changed
+            model.policy.actor_state = model.policy.actor_state.replace(params=live.params)
+
+    session_module.Session.validate = validate
+    return stats

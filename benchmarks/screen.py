@@ -37,6 +37,8 @@ process only, so that an idea can be judged in four minutes before it is built p
 - ``--action-search K,S,BETA,LOCAL``: SAC's actor also pulled towards the best of K candidate
   actions scored by the critics, on S states of each batch (:func:`patch_action_search`).
 - ``--return-bound``: the critic's targets bounded below by the realised return (:func:`patch_return_bound`).
+- ``--actor-ema TAU``: validation (and the kept model) judges an exponential moving average of the
+  actor's parameters, moved TAU of the way after every train call (:func:`patch_actor_ema`).
 - ``--failed-demos EVERY,STATES,REPEAT,SECONDS``: the oracle's sequences for the latest failed
   starts go into the replay buffer as the run goes (:func:`patch_failed_demos`).
 - ``--demo-bc BETA,FILTER``: SAC's actor also imitates the stored demonstrations (:func:`patch_demo_bc`).
@@ -67,7 +69,8 @@ import asap_dsl
 from asap_dsl.backends.rl import presets
 from asap_dsl.backends.rl import session as session_module
 from asap_dsl.env import core_of
-from learner_probes import patch_action_search, patch_demo_bc, patch_return_bound, patch_sbx_class
+from learner_probes import (patch_action_search, patch_actor_ema, patch_demo_bc, patch_return_bound,
+                            patch_sbx_class)
 
 
 def patch_end_at_reach(r_sat: float, gamma: float) -> dict:
@@ -436,6 +439,8 @@ def main() -> int:
     ap.add_argument("--observe-rho", action="store_true")
     ap.add_argument("--demo-paths", help="an oracle cache of benchmarks/imitation.py")
     ap.add_argument("--return-bound", action="store_true")
+    ap.add_argument("--actor-ema", type=float, metavar="TAU",
+                    help="validation judges an average of the actor's parameters, moved TAU per train call")
     ap.add_argument("--failed-demos", help="EVERY,STATES,REPEAT,SECONDS", type=comma(int, int, int, float))
     ap.add_argument("--demo-bc", help="BETA,FILTER (FILTER 1: only where the critics prefer the oracle's action)",
                     type=comma(float, int))
@@ -489,6 +494,8 @@ def main() -> int:
         more["demo_bc"] = patch_demo_bc(beta, bool(filt))
     if args.action_search:
         patch_action_search(*args.action_search)
+    if args.actor_ema:
+        more["actor_ema"] = patch_actor_ema(args.actor_ema)
     kw = {k: getattr(args, k) for k in ("algo", "demonstrations", "failed_starts") if getattr(args, k) is not None}
     callbacks = []
     if args.lr_drop:
