@@ -222,6 +222,37 @@ def test_both_engines_build_the_same_networks_on_the_same_spaces(algo):
         assert sbx.qf_learning_rate == cfg.hyper["learning_rate"]  # one rate for actor and critic, as in SB3
 
 
+def test_layer_normalised_critics_are_the_same_networks_on_both_engines(tmp_path):
+    """``layer_norm``: sbx's SAC option, which stable-baselines3 lacks; the project's torch policy
+    builds the same critics (Linear, LayerNorm, activation), and a saved model loads with them."""
+    import torch
+
+    from asap_dsl.backends.rl.config import resolve_config
+    from asap_dsl.backends.rl.engines import get_engine
+    from asap_dsl.backends.rl.session import LearnerEnv
+    from asap_dsl.backends.rl.sb3 import Scaling, ScaledVecEnv
+    from asap_dsl.env import make_vec_env
+
+    prog = asap_dsl.load(ROOT / "specs" / "dc_motor.asap")
+    cfg = resolve_config(prog, "reach_avoid", algo="sac", settings={"layer_norm": True})
+    task = prog.task("reach_avoid").model
+    scaling = Scaling.for_system(prog.system, cfg.observation_scaling, cfg.action_scaling, task.init_box)
+    env = LearnerEnv(ScaledVecEnv(make_vec_env(prog, "reach_avoid", num_envs=cfg.n_envs, seed=0), scaling), False)
+    sbx, sb3 = (get_engine(e).build("sac", env, cfg.hyper, 0) for e in ("sbx", "sb3"))
+    plain = get_engine("sb3").build("sac", env, {k: v for k, v in cfg.hyper.items() if k != "layer_norm"}, 0)
+    torch_count = lambda net: sum(p.numel() for p in net.parameters())  # noqa: E731
+    assert _param_count(sbx.policy.qf_state.params) == torch_count(sb3.critic) > torch_count(plain.critic)
+    for critic in (sb3.critic, sb3.critic_target):
+        kinds = [type(m).__name__ for m in critic.qf0]
+        assert kinds == ["Linear", "LayerNorm", "ReLU", "Linear", "LayerNorm", "ReLU", "Linear"]
+    assert not any(isinstance(m, torch.nn.LayerNorm) for m in sb3.actor.modules())  # the critics only, as sbx
+    sb3.save(str(tmp_path / "model.zip"))
+    back = get_engine("sb3").load("sac", tmp_path / "model.zip")
+    assert type(back.policy).__name__ == "LayerNormSACPolicy" and back.policy.layer_norm
+    for a, b in zip(sb3.critic.parameters(), back.critic.parameters()):
+        assert torch.equal(a, b)
+
+
 def test_jax_loads_only_to_train_on_cpu_with_one_compute_thread_and_a_disk_cache(tmp_path):
     code = f"""
 import os, sys

@@ -35,6 +35,9 @@ _RUN_OWN = frozenset({"self", "policy", "env", "seed", "device", "tensorboard_lo
 _POLICY_OWN = frozenset({"self", "observation_space", "action_space", "lr_schedule"})
 #: The language's own settings, and the algorithms that take them.
 EXTENSIONS = {"target_entropy_per_action": ("sac",)}
+#: Policy keywords an engine's library lacks and the project adds: stable-baselines3's SAC
+#: normalises its critics' hidden layers as sbx's does (``sb3._layer_norm_sac_policy``).
+POLICY_EXTENSIONS = {("sb3", "sac"): frozenset({"layer_norm"})}
 #: ``activation_fn`` by name: torch.nn's class for stable-baselines3, flax.linen's function for sbx.
 ACTIVATIONS = {"relu": ("ReLU", "relu"), "tanh": ("Tanh", "tanh"), "elu": ("ELU", "elu"),
                "leaky_relu": ("LeakyReLU", "leaky_relu"), "gelu": ("GELU", "gelu"), "silu": ("SiLU", "silu"),
@@ -168,7 +171,7 @@ def keywords(engine: str, algo: str) -> Keywords:
         k = _inspected(engine, algo)
     else:
         k = Keywords(frozenset(ctor) - _RUN_OWN, frozenset(policy) - _POLICY_OWN)
-    return Keywords(k.constructor | own, k.policy)
+    return Keywords(k.constructor | own, k.policy | POLICY_EXTENSIONS.get((engine, algo), frozenset()))
 
 
 # ------------------------------------------------------------------------------ the layers
