@@ -222,9 +222,10 @@ def test_both_engines_build_the_same_networks_on_the_same_spaces(algo):
         assert sbx.qf_learning_rate == cfg.hyper["learning_rate"]  # one rate for actor and critic, as in SB3
 
 
-def test_layer_normalised_critics_are_the_same_networks_on_both_engines(tmp_path):
-    """``layer_norm``: sbx's SAC option, which stable-baselines3 lacks; the project's torch policy
-    builds the same critics (Linear, LayerNorm, activation), and a saved model loads with them."""
+@pytest.mark.parametrize("algo", ["sac", "td3", "ddpg"])
+def test_layer_normalised_critics_are_the_same_networks_on_both_engines(tmp_path, algo):
+    """``layer_norm``: sbx's option, which stable-baselines3 lacks; the project's torch policies
+    build the same critics (Linear, LayerNorm, activation), and a saved model loads with them."""
     import torch
 
     from asap_dsl.backends.rl.config import resolve_config
@@ -234,12 +235,12 @@ def test_layer_normalised_critics_are_the_same_networks_on_both_engines(tmp_path
     from asap_dsl.env import make_vec_env
 
     prog = asap_dsl.load(ROOT / "specs" / "dc_motor.asap")
-    cfg = resolve_config(prog, "reach_avoid", algo="sac", settings={"layer_norm": True})
+    cfg = resolve_config(prog, "reach_avoid", algo=algo, settings={"layer_norm": True})
     task = prog.task("reach_avoid").model
     scaling = Scaling.for_system(prog.system, cfg.observation_scaling, cfg.action_scaling, task.init_box)
     env = LearnerEnv(ScaledVecEnv(make_vec_env(prog, "reach_avoid", num_envs=cfg.n_envs, seed=0), scaling), False)
-    sbx, sb3 = (get_engine(e).build("sac", env, cfg.hyper, 0) for e in ("sbx", "sb3"))
-    plain = get_engine("sb3").build("sac", env, {k: v for k, v in cfg.hyper.items() if k != "layer_norm"}, 0)
+    sbx, sb3 = (get_engine(e).build(algo, env, cfg.hyper, 0) for e in ("sbx", "sb3"))
+    plain = get_engine("sb3").build(algo, env, {k: v for k, v in cfg.hyper.items() if k != "layer_norm"}, 0)
     torch_count = lambda net: sum(p.numel() for p in net.parameters())  # noqa: E731
     assert _param_count(sbx.policy.qf_state.params) == torch_count(sb3.critic) > torch_count(plain.critic)
     for critic in (sb3.critic, sb3.critic_target):
@@ -247,8 +248,9 @@ def test_layer_normalised_critics_are_the_same_networks_on_both_engines(tmp_path
         assert kinds == ["Linear", "LayerNorm", "ReLU", "Linear", "LayerNorm", "ReLU", "Linear"]
     assert not any(isinstance(m, torch.nn.LayerNorm) for m in sb3.actor.modules())  # the critics only, as sbx
     sb3.save(str(tmp_path / "model.zip"))
-    back = get_engine("sb3").load("sac", tmp_path / "model.zip")
-    assert type(back.policy).__name__ == "LayerNormSACPolicy" and back.policy.layer_norm
+    back = get_engine("sb3").load(algo, tmp_path / "model.zip")
+    assert type(back.policy).__name__ == ("LayerNormSACPolicy" if algo == "sac" else "LayerNormTD3Policy")
+    assert back.policy.layer_norm
     for a, b in zip(sb3.critic.parameters(), back.critic.parameters()):
         assert torch.equal(a, b)
 

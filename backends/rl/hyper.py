@@ -35,9 +35,9 @@ _RUN_OWN = frozenset({"self", "policy", "env", "seed", "device", "tensorboard_lo
 _POLICY_OWN = frozenset({"self", "observation_space", "action_space", "lr_schedule"})
 #: The language's own settings, and the algorithms that take them.
 EXTENSIONS = {"target_entropy_per_action": ("sac",)}
-#: Policy keywords an engine's library lacks and the project adds: stable-baselines3's SAC
-#: normalises its critics' hidden layers as sbx's does (``sb3._layer_norm_sac_policy``).
-POLICY_EXTENSIONS = {("sb3", "sac"): frozenset({"layer_norm"})}
+#: Policy keywords an engine's library lacks and the project adds: stable-baselines3's SAC, TD3
+#: and DDPG normalise their critics' hidden layers as sbx's do (``sb3._layer_norm_policy``).
+POLICY_EXTENSIONS = {("sb3", algo): frozenset({"layer_norm"}) for algo in ("sac", "td3", "ddpg")}
 #: ``activation_fn`` by name: torch.nn's class for stable-baselines3, flax.linen's function for sbx.
 ACTIVATIONS = {"relu": ("ReLU", "relu"), "tanh": ("Tanh", "tanh"), "elu": ("ELU", "elu"),
                "leaky_relu": ("LeakyReLU", "leaky_relu"), "gelu": ("GELU", "gelu"), "silu": ("SiLU", "silu"),

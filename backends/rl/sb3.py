@@ -194,54 +194,63 @@ def build_model(algo: str, env, settings: dict[str, Any], seed: int, tensorboard
     (:func:`model_kwargs`). The engine of a run builds it: :mod:`.engines`."""
     cls = _algo_class(algo)
     kw = model_kwargs(algo, env.action_space, settings, "sb3")
-    policy = _layer_norm_sac_policy() if kw["policy_kwargs"].get("layer_norm") else "MlpPolicy"
+    policy = _layer_norm_policy(algo) if kw["policy_kwargs"].get("layer_norm") else "MlpPolicy"
     return cls(policy, env, seed=seed, device="cpu", tensorboard_log=tensorboard_log, verbose=0, **kw)
 
 
-def _layer_norm_sac_policy():
-    """stable-baselines3's SAC policy whose critics normalise every hidden layer (``layer_norm``):
-    Linear, LayerNorm, activation, as sbx's SAC builds them, so that the setting means one thing on
-    both engines. Defined on first use: it imports torch."""
-    global _LayerNormSACPolicy
-    if _LayerNormSACPolicy is None:
-        from stable_baselines3.sac.policies import SACPolicy
+#: The off-policy algorithms' policy classes whose critics can normalise their hidden layers.
+_LAYER_NORM_BASES = {"sac": ("stable_baselines3.sac.policies", "SACPolicy"),
+                     "td3": ("stable_baselines3.td3.policies", "TD3Policy"),
+                     "ddpg": ("stable_baselines3.td3.policies", "TD3Policy")}
+_layer_norm_classes: dict = {}
+
+
+def _layer_norm_policy(algo: str):
+    """stable-baselines3's policy of ``algo`` whose critics normalise every hidden layer
+    (``layer_norm``): Linear, LayerNorm, activation, as sbx builds them, so that the setting means
+    one thing on both engines. Defined on first use: it imports torch."""
+    import importlib
+
+    module, base_name = _LAYER_NORM_BASES[algo]
+    name = "LayerNorm" + base_name
+    if name not in _layer_norm_classes:
         from torch import nn
 
-        class LayerNormSACPolicy(SACPolicy):
-            def __init__(self, *args, layer_norm: bool = True, **kwargs):
-                self.layer_norm = layer_norm  # read by make_critic, which the parent's __init__ calls
-                super().__init__(*args, **kwargs)
+        base = getattr(importlib.import_module(module), base_name)
 
-            def make_critic(self, features_extractor=None):
-                critic = super().make_critic(features_extractor)
-                if self.layer_norm:
-                    for idx, q_net in enumerate(critic.q_networks):
-                        layers: list = []
-                        hidden = [m for m in q_net if isinstance(m, nn.Linear)][:-1]
-                        for m in q_net:
-                            layers.append(m)
-                            if any(m is h for h in hidden):
-                                layers.append(nn.LayerNorm(m.out_features))
-                        critic.q_networks[idx] = nn.Sequential(*layers).to(self.device)
-                        critic.add_module(f"qf{idx}", critic.q_networks[idx])
-                return critic
+        def __init__(self, *args, layer_norm: bool = True, **kwargs):
+            self.layer_norm = layer_norm  # read by make_critic, which the parent's __init__ calls
+            base.__init__(self, *args, **kwargs)
 
-            def _get_constructor_parameters(self) -> dict:
-                return {**super()._get_constructor_parameters(), "layer_norm": self.layer_norm}
+        def make_critic(self, features_extractor=None):
+            critic = base.make_critic(self, features_extractor)
+            if self.layer_norm:
+                for idx, q_net in enumerate(critic.q_networks):
+                    hidden = [m for m in q_net if isinstance(m, nn.Linear)][:-1]
+                    layers: list = []
+                    for m in q_net:
+                        layers.append(m)
+                        if any(m is h for h in hidden):
+                            layers.append(nn.LayerNorm(m.out_features))
+                    critic.q_networks[idx] = nn.Sequential(*layers).to(self.device)
+                    critic.add_module(f"qf{idx}", critic.q_networks[idx])
+            return critic
 
-        LayerNormSACPolicy.__module__ = __name__
-        LayerNormSACPolicy.__qualname__ = "LayerNormSACPolicy"
-        _LayerNormSACPolicy = LayerNormSACPolicy
-    return _LayerNormSACPolicy
+        def _get_constructor_parameters(self) -> dict:
+            return {**base._get_constructor_parameters(self), "layer_norm": self.layer_norm}
 
-
-_LayerNormSACPolicy = None
+        cls = type(name, (base,), {"__init__": __init__, "make_critic": make_critic,
+                                   "_get_constructor_parameters": _get_constructor_parameters,
+                                   "__module__": __name__, "__qualname__": name})
+        _layer_norm_classes[name] = cls
+    return _layer_norm_classes[name]
 
 
 def __getattr__(name: str):
     # A saved model names its policy class by module and name: loading one finds it here.
-    if name == "LayerNormSACPolicy":
-        return _layer_norm_sac_policy()
+    for algo, (_, base_name) in _LAYER_NORM_BASES.items():
+        if name == "LayerNorm" + base_name:
+            return _layer_norm_policy(algo)
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
