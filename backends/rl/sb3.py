@@ -194,7 +194,8 @@ def build_model(algo: str, env, settings: dict[str, Any], seed: int, tensorboard
     (:func:`model_kwargs`). The engine of a run builds it: :mod:`.engines`."""
     cls = _algo_class(algo)
     kw = model_kwargs(algo, env.action_space, settings, "sb3")
-    policy = _layer_norm_policy(algo) if kw["policy_kwargs"].get("layer_norm") else "MlpPolicy"
+    # stable-baselines3's own policies take no ``layer_norm``: true picks the project's, false nothing.
+    policy = _layer_norm_policy(algo) if kw["policy_kwargs"].pop("layer_norm", False) else "MlpPolicy"
     return cls(policy, env, seed=seed, device="cpu", tensorboard_log=tensorboard_log, verbose=0, **kw)
 
 
@@ -218,30 +219,19 @@ def _layer_norm_policy(algo: str):
 
         base = getattr(importlib.import_module(module), base_name)
 
-        def __init__(self, *args, layer_norm: bool = True, **kwargs):
-            self.layer_norm = layer_norm  # read by make_critic, which the parent's __init__ calls
-            base.__init__(self, *args, **kwargs)
-
         def make_critic(self, features_extractor=None):
             critic = base.make_critic(self, features_extractor)
-            if self.layer_norm:
-                for idx, q_net in enumerate(critic.q_networks):
-                    hidden = [m for m in q_net if isinstance(m, nn.Linear)][:-1]
-                    layers: list = []
-                    for m in q_net:
-                        layers.append(m)
-                        if any(m is h for h in hidden):
-                            layers.append(nn.LayerNorm(m.out_features))
-                    critic.q_networks[idx] = nn.Sequential(*layers).to(self.device)
-                    critic.add_module(f"qf{idx}", critic.q_networks[idx])
+            for idx, q_net in enumerate(critic.q_networks):
+                layers: list = []
+                for m in q_net:  # a norm after every Linear but the output
+                    layers.append(m)
+                    if isinstance(m, nn.Linear) and m is not q_net[-1]:
+                        layers.append(nn.LayerNorm(m.out_features))
+                critic.q_networks[idx] = nn.Sequential(*layers).to(self.device)
+                critic.add_module(f"qf{idx}", critic.q_networks[idx])
             return critic
 
-        def _get_constructor_parameters(self) -> dict:
-            return {**base._get_constructor_parameters(self), "layer_norm": self.layer_norm}
-
-        cls = type(name, (base,), {"__init__": __init__, "make_critic": make_critic,
-                                   "_get_constructor_parameters": _get_constructor_parameters,
-                                   "__module__": __name__, "__qualname__": name})
+        cls = type(name, (base,), {"make_critic": make_critic, "__module__": __name__, "__qualname__": name})
         _layer_norm_classes[name] = cls
     return _layer_norm_classes[name]
 
