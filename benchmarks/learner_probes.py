@@ -364,3 +364,67 @@ def patch_actor_ema(tau: float) -> dict:
 
     session_module.Session.validate = validate
     return stats
+
+
+def patch_critic_mean(target: bool) -> dict:
+    """SAC's actor climbs the mean of its critics instead of their minimum (and, with ``target``, the
+    critics' targets take the mean too: no clipped double-Q). The minimum is a pessimism against
+    the over-estimates of noisy targets; at the goal's boundary, where the fastest path grazes the
+    goal (the oracle enters at ρ ~1e-4, the policies 0.002-0.015 deep and a step later), it also
+    prices a grazing entry by the critic that doubts it most. The dynamics are deterministic."""
+    import flax
+    import jax
+    import jax.numpy as jnp
+    import sbx
+
+    from asap_dsl.backends.rl import engines
+
+    @jax.jit
+    def update_actor(actor_state, qf_state, ent_coef_state, observations, key):
+        key, dropout_key, noise_key = jax.random.split(key, 3)
+
+        def actor_loss(params):
+            dist = actor_state.apply_fn(params, observations)
+            actions = dist.sample(seed=noise_key)
+            log_prob = dist.log_prob(actions).reshape(-1, 1)
+            q = qf_state.apply_fn(qf_state.params, observations, actions, rngs={"dropout": dropout_key})
+            ent = ent_coef_state.apply_fn({"params": ent_coef_state.params})
+            return (ent * log_prob - jnp.mean(q, axis=0)).mean(), -log_prob.mean()
+
+        return _actor_step(actor_state, qf_state, key, actor_loss)
+
+    @jax.jit
+    def update_critic(actor_state, qf_state, ent_coef_state, observations, actions, next_observations, rewards,
+                      dones, discounts, key):
+        key, noise_key, dk_target, dk_current = jax.random.split(key, 4)
+        dist = actor_state.apply_fn(actor_state.params, next_observations)
+        next_actions = dist.sample(seed=noise_key)
+        next_log_prob = dist.log_prob(next_actions)
+        ent = ent_coef_state.apply_fn({"params": ent_coef_state.params})
+        q_next = qf_state.apply_fn(qf_state.target_params, next_observations, next_actions, rngs={"dropout": dk_target})
+        q_next = jnp.mean(q_next, axis=0) - ent * next_log_prob[:, None]
+        y = rewards[:, None] + (1 - dones[:, None]) * discounts[:, None] * q_next
+
+        def mse(params: flax.core.FrozenDict, dk):
+            q = qf_state.apply_fn(params, observations, actions, rngs={"dropout": dk})
+            return 0.5 * ((y - q) ** 2).mean(axis=1).sum()
+
+        loss, grads = jax.value_and_grad(mse)(qf_state.params, dk_current)
+        return qf_state.apply_gradients(grads=grads), (loss, ent), key
+
+    orig_model_class = engines.SbxEngine._model_class
+    made: dict = {}
+
+    def _model_class(self, algo):
+        cls = orig_model_class(self, algo)
+        if algo != "sac" or not issubclass(cls, sbx.SAC):
+            return cls
+        if cls not in made:
+            members = {"update_actor": staticmethod(update_actor)}
+            if target:
+                members["update_critic"] = staticmethod(update_critic)
+            made[cls] = type("MeanCriticSAC", (cls,), members)
+        return made[cls]
+
+    engines.SbxEngine._model_class = _model_class
+    return {"critic_mean": "actor and target" if target else "actor"}

@@ -39,6 +39,8 @@ process only, so that an idea can be judged in four minutes before it is built p
 - ``--return-bound``: the critic's targets bounded below by the realised return (:func:`patch_return_bound`).
 - ``--actor-ema TAU``: validation (and the kept model) judges an exponential moving average of the
   actor's parameters, moved TAU of the way after every train call (:func:`patch_actor_ema`).
+- ``--critic-mean actor|both``: SAC's actor climbs the mean of its critics, not their minimum (``both``:
+  their targets too, no clipped double-Q) (:func:`patch_critic_mean`).
 - ``--failed-demos EVERY,STATES,REPEAT,SECONDS``: the oracle's sequences for the latest failed
   starts go into the replay buffer as the run goes (:func:`patch_failed_demos`).
 - ``--demo-bc BETA,FILTER``: SAC's actor also imitates the stored demonstrations (:func:`patch_demo_bc`).
@@ -69,8 +71,8 @@ import asap_dsl
 from asap_dsl.backends.rl import presets
 from asap_dsl.backends.rl import session as session_module
 from asap_dsl.env import core_of
-from learner_probes import (patch_action_search, patch_actor_ema, patch_demo_bc, patch_return_bound,
-                            patch_sbx_class)
+from learner_probes import (patch_action_search, patch_actor_ema, patch_critic_mean, patch_demo_bc,
+                            patch_return_bound, patch_sbx_class)
 
 
 def patch_end_at_reach(r_sat: float, gamma: float) -> dict:
@@ -441,6 +443,8 @@ def main() -> int:
     ap.add_argument("--return-bound", action="store_true")
     ap.add_argument("--actor-ema", type=float, metavar="TAU",
                     help="validation judges an average of the actor's parameters, moved TAU per train call")
+    ap.add_argument("--critic-mean", choices=("actor", "both"),
+                    help="the actor (both: and the critics' targets) take the critics' mean, not their minimum")
     ap.add_argument("--failed-demos", help="EVERY,STATES,REPEAT,SECONDS", type=comma(int, int, int, float))
     ap.add_argument("--demo-bc", help="BETA,FILTER (FILTER 1: only where the critics prefer the oracle's action)",
                     type=comma(float, int))
@@ -496,6 +500,8 @@ def main() -> int:
         patch_action_search(*args.action_search)
     if args.actor_ema:
         more["actor_ema"] = patch_actor_ema(args.actor_ema)
+    if args.critic_mean:
+        more.update(patch_critic_mean(args.critic_mean == "both"))
     kw = {k: getattr(args, k) for k in ("algo", "demonstrations", "failed_starts") if getattr(args, k) is not None}
     callbacks = []
     if args.lr_drop:
