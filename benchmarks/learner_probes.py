@@ -371,7 +371,8 @@ def patch_critic_mean(target: bool) -> dict:
     critics' targets take the mean too: no clipped double-Q). The minimum is a pessimism against
     the over-estimates of noisy targets; at the goal's boundary, where the fastest path grazes the
     goal (the oracle enters at ρ ~1e-4, the policies 0.002-0.015 deep and a step later), it also
-    prices a grazing entry by the critic that doubts it most. The dynamics are deterministic."""
+    prices a grazing entry by the critic that doubts it most. The dynamics are deterministic. (Not
+    with the imitation: its actor update is its own, :mod:`asap_dsl.backends.rl.imitation`.)"""
     import flax
     import jax
     import jax.numpy as jnp
