@@ -27,17 +27,42 @@ def patch_sbx_class(name: str) -> None:
     engines.SbxEngine.load = lambda self, algo, path, env=None: cls.load(str(path), env=env, device="cpu")
 
 
-def _sac_actor_loss(actor_state, qf_state, ent_coef_state, params, observations, noise_key, dropout_key):
-    """sbx SAC's own actor loss, ``(loss, log_prob, min_qf_pi)``, for the probes that add to it."""
+def _sac_actor_loss(actor_state, qf_state, ent_coef_state, params, observations, noise_key, dropout_key,
+                    aggregate=None):
+    """sbx SAC's own actor loss, ``(loss, log_prob, min_qf_pi)``, for the probes that add to it;
+    ``aggregate`` joins the critics' values (their minimum, as sbx, when None)."""
     import jax.numpy as jnp
 
     dist = actor_state.apply_fn(params, observations)
     actor_actions = dist.sample(seed=noise_key)
     log_prob = dist.log_prob(actor_actions).reshape(-1, 1)
     qf_pi = qf_state.apply_fn(qf_state.params, observations, actor_actions, rngs={"dropout": dropout_key})
-    min_qf_pi = jnp.min(qf_pi, axis=0)
+    min_qf_pi = (aggregate or jnp.min)(qf_pi, axis=0)
     ent_coef_value = ent_coef_state.apply_fn({"params": ent_coef_state.params})
     return (ent_coef_value * log_prob - min_qf_pi).mean(), log_prob, min_qf_pi
+
+
+def _critic_step(actor_state, qf_state, ent_coef_state, observations, actions, next_observations, key, target):
+    """sbx SAC's critic step with the targets ``target(qf_next, ent_coef, next_log_prob)`` (the target
+    critics' values ``[n_critics, batch, 1]`` at the next observations and the actor's sampled
+    actions there), returned as sbx's ``update_critic`` returns."""
+    import jax
+
+    key, noise_key, dropout_key_target, dropout_key_current = jax.random.split(key, 4)
+    dist = actor_state.apply_fn(actor_state.params, next_observations)
+    next_actions = dist.sample(seed=noise_key)
+    next_log_prob = dist.log_prob(next_actions)
+    ent_coef_value = ent_coef_state.apply_fn({"params": ent_coef_state.params})
+    qf_next = qf_state.apply_fn(qf_state.target_params, next_observations, next_actions,
+                                rngs={"dropout": dropout_key_target})
+    y = target(qf_next, ent_coef_value, next_log_prob)
+
+    def mse(params, dropout_key):
+        q = qf_state.apply_fn(params, observations, actions, rngs={"dropout": dropout_key})
+        return 0.5 * ((y - q) ** 2).mean(axis=1).sum()
+
+    loss, grads = jax.value_and_grad(mse)(qf_state.params, dropout_key_current)
+    return qf_state.apply_gradients(grads=grads), (loss, ent_coef_value), key
 
 
 def _actor_step(actor_state, qf_state, key, actor_loss):
@@ -178,23 +203,12 @@ def patch_return_bound(gamma: float, tail: float) -> dict:
     @jax.jit
     def update_critic(actor_state, qf_state, ent_coef_state, observations, actions, next_observations, rewards,
                       dones, bound, key):
-        key, noise_key, dropout_key_target, dropout_key_current = jax.random.split(key, 4)
-        dist = actor_state.apply_fn(actor_state.params, next_observations)
-        next_actions = dist.sample(seed=noise_key)
-        next_log_prob = dist.log_prob(next_actions)
-        ent_coef_value = ent_coef_state.apply_fn({"params": ent_coef_state.params})
-        qf_next = qf_state.apply_fn(qf_state.target_params, next_observations, next_actions,
-                                    rngs={"dropout": dropout_key_target})
-        next_q = jnp.min(qf_next, axis=0) - ent_coef_value * next_log_prob[:, None]
-        target = rewards[:, None] + (1 - dones[:, None]) * gamma * next_q
-        target = jnp.maximum(target, bound[:, None])
+        def target(qf_next, ent_coef_value, next_log_prob):
+            next_q = jnp.min(qf_next, axis=0) - ent_coef_value * next_log_prob[:, None]
+            return jnp.maximum(rewards[:, None] + (1 - dones[:, None]) * gamma * next_q, bound[:, None])
 
-        def mse(params, dropout_key):
-            q = qf_state.apply_fn(params, observations, actions, rngs={"dropout": dropout_key})
-            return 0.5 * ((target - q) ** 2).mean(axis=1).sum()
-
-        loss, grads = jax.value_and_grad(mse)(qf_state.params, dropout_key_current)
-        return qf_state.apply_gradients(grads=grads), (loss, ent_coef_value), key
+        return _critic_step(actor_state, qf_state, ent_coef_state, observations, actions, next_observations, key,
+                            target)
 
     class BoundSAC(sbx.SAC):
         @classmethod
@@ -373,7 +387,6 @@ def patch_critic_mean(target: bool) -> dict:
     goal (the oracle enters at ρ ~1e-4, the policies 0.002-0.015 deep and a step later), it also
     prices a grazing entry by the critic that doubts it most. The dynamics are deterministic. (Not
     with the imitation: its actor update is its own, :mod:`asap_dsl.backends.rl.imitation`.)"""
-    import flax
     import jax
     import jax.numpy as jnp
     import sbx
@@ -385,33 +398,21 @@ def patch_critic_mean(target: bool) -> dict:
         key, dropout_key, noise_key = jax.random.split(key, 3)
 
         def actor_loss(params):
-            dist = actor_state.apply_fn(params, observations)
-            actions = dist.sample(seed=noise_key)
-            log_prob = dist.log_prob(actions).reshape(-1, 1)
-            q = qf_state.apply_fn(qf_state.params, observations, actions, rngs={"dropout": dropout_key})
-            ent = ent_coef_state.apply_fn({"params": ent_coef_state.params})
-            return (ent * log_prob - jnp.mean(q, axis=0)).mean(), -log_prob.mean()
+            loss, log_prob, _ = _sac_actor_loss(actor_state, qf_state, ent_coef_state, params, observations,
+                                                noise_key, dropout_key, aggregate=jnp.mean)
+            return loss, -log_prob.mean()
 
         return _actor_step(actor_state, qf_state, key, actor_loss)
 
     @jax.jit
     def update_critic(actor_state, qf_state, ent_coef_state, observations, actions, next_observations, rewards,
                       dones, discounts, key):
-        key, noise_key, dk_target, dk_current = jax.random.split(key, 4)
-        dist = actor_state.apply_fn(actor_state.params, next_observations)
-        next_actions = dist.sample(seed=noise_key)
-        next_log_prob = dist.log_prob(next_actions)
-        ent = ent_coef_state.apply_fn({"params": ent_coef_state.params})
-        q_next = qf_state.apply_fn(qf_state.target_params, next_observations, next_actions, rngs={"dropout": dk_target})
-        q_next = jnp.mean(q_next, axis=0) - ent * next_log_prob[:, None]
-        y = rewards[:, None] + (1 - dones[:, None]) * discounts[:, None] * q_next
+        def target(qf_next, ent_coef_value, next_log_prob):
+            next_q = jnp.mean(qf_next, axis=0) - ent_coef_value * next_log_prob[:, None]
+            return rewards[:, None] + (1 - dones[:, None]) * discounts[:, None] * next_q
 
-        def mse(params: flax.core.FrozenDict, dk):
-            q = qf_state.apply_fn(params, observations, actions, rngs={"dropout": dk})
-            return 0.5 * ((y - q) ** 2).mean(axis=1).sum()
-
-        loss, grads = jax.value_and_grad(mse)(qf_state.params, dk_current)
-        return qf_state.apply_gradients(grads=grads), (loss, ent), key
+        return _critic_step(actor_state, qf_state, ent_coef_state, observations, actions, next_observations, key,
+                            target)
 
     orig_model_class = engines.SbxEngine._model_class
     made: dict = {}
