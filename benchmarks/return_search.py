@@ -33,23 +33,6 @@ import numpy as np
 SEARCH_SEEDS = 100_000
 
 
-class Prefix:
-    """Fixed actions for the first steps of each row (NaN: the base controller's), then the base."""
-
-    def __init__(self, base, prefix: np.ndarray):
-        self.base, self.prefix = base, prefix  # [T, N, m]
-
-    def reset(self, states: np.ndarray) -> None:
-        self.base.reset(states)
-
-    def act(self, obs: np.ndarray, states: np.ndarray, t: int) -> np.ndarray:
-        a = np.asarray(self.base.act(obs, states, t), dtype=np.float64)
-        if t < len(self.prefix):
-            fixed = ~np.isnan(self.prefix[t]).any(axis=1)
-            a[fixed] = self.prefix[t][fixed]
-        return a
-
-
 def discounted_returns(evaluator, controller, states: np.ndarray, gamma: float, failure_reward: float):
     """Per row: the discounted return of the task's reward (a failure step earns ``failure_reward``,
     as in training) and the step ``asap`` first held (inf if never)."""
@@ -102,6 +85,7 @@ class Population:
 
 
 def headroom(args, loaded) -> int:
+    from asap_dsl.backends.compare.controllers import _Prefix as Prefix  # the look-ahead's: fixed actions, then the base
     from asap_dsl.backends.oracle import run as oracle
     from asap_dsl.rollout import Evaluator
     from asap_dsl.sampling import task_states
