@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import sys
 import time
 
@@ -202,24 +203,36 @@ def main() -> int:
     args = ap.parse_args()
     from asap_dsl.backends.rl.config import VALIDATION_SEED
     from asap_dsl.backends.rl.evaluation import load_run
+    from asap_dsl.limits import ResourceLimit, check_batch
     from asap_dsl.runs import RunError
     from asap_dsl.sampling import EVAL_SEED
 
     if args.probe == "headroom":
-        bad = args.states < 1 or args.workers < 1 or args.seed in (EVAL_SEED, VALIDATION_SEED)
+        bad = "" if args.states >= 1 and args.workers >= 1 and args.seed >= 0 and args.seed not in (
+            EVAL_SEED, VALIDATION_SEED) else (
+            "--states and --workers take positive whole numbers, --seed a whole number of at least 0 that is neither "
+            f"the evaluation's ({EVAL_SEED}) nor the validation's ({VALIDATION_SEED})")
     else:
-        bad = (args.iterations < 1 or args.population < 2 or args.population % 2 or args.batch < 1
-               or not args.sigma > 0 or not args.lr > 0 or args.every < 1)
+        positive = all(math.isfinite(x) and x > 0 for x in (args.sigma, args.lr))
+        bad = "" if (args.iterations >= 1 and args.population >= 2 and args.population % 2 == 0 and args.batch >= 1
+                     and args.every >= 1 and args.seed >= 0 and positive) else (
+            "--iterations, --batch and --every take positive whole numbers, --population an even one of at least 2, "
+            "--sigma and --lr positive finite numbers, --seed a whole number of at least 0")
     if bad:
-        print("return_search: --states, --workers, --iterations, --batch and --every take positive whole numbers, "
-              "--population an even one of at least 2, --sigma and --lr positive numbers, --seed neither the "
-              f"evaluation's ({EVAL_SEED}) nor the validation's ({VALIDATION_SEED})", file=sys.stderr)
+        print(f"return_search: {bad}", file=sys.stderr)
         return 2
     try:
         loaded = load_run(args.run)
     except RunError as err:
         print(f"return_search: {err}", file=sys.stderr)
         return 1
+    if args.probe == "search":
+        try:  # the population's rollouts: one batched environment of population x batch rows
+            check_batch(loaded.program, loaded.config.task, args.population * args.batch,
+                        f"--population {args.population} x --batch {args.batch}", loaded.config.reward)
+        except ResourceLimit as err:
+            print(f"return_search: {err}", file=sys.stderr)
+            return 2
     if loaded.config.engine != "sbx" or loaded.config.algo != "sac":
         print(f"return_search: {args.run} is {loaded.config.algo} on {loaded.config.engine}; the probes read sbx's "
               "SAC actor", file=sys.stderr)
