@@ -50,6 +50,10 @@ def fill_train_subparser(subparsers) -> argparse.ArgumentParser:
                         "known dynamics): the --demonstrations states' paths, or the preset's 2,500 states' within "
                         "1,440 CPU seconds of the oracle (12 minutes on 2 cores), all in the replay buffer from the "
                         "start (default: 0, none; 1 was measured)")
+    p.add_argument("--search-iterations", type=natural_int, metavar="N",
+                   help="after the learner, evolution strategies on the best actor for N iterations, the model kept "
+                        "only if it beats the learner's on validation (SAC, TD3, DDPG on sbx; default: the preset's; "
+                        "0: none)")
     p.add_argument("--failed-starts", type=share_float, metavar="P",
                    help="the share of new training episodes that start where an earlier one did not reach "
                         "(default: the preset's, 0.5; 0: none)")
@@ -168,7 +172,7 @@ def train_command(args: argparse.Namespace, out: Optional[TextIO] = None, err: O
                        progress=progress, evaluate=not args.no_eval,
                        time_limit=None if args.time_limit is None else 60.0 * args.time_limit,
                        demonstrations=args.demonstrations, failed_starts=args.failed_starts,
-                       imitation=args.imitation,
+                       imitation=args.imitation, search_iterations=args.search_iterations,
                        **_engine_options(args))
     except KeyError as e:  # an unknown task
         raise UsageError(e.args[0]) from None
@@ -183,7 +187,8 @@ def train_command(args: argparse.Namespace, out: Optional[TextIO] = None, err: O
     best = result.best
     out.write(f"trained {result.steps:,} steps in {result.seconds:.1f} s: {shown(result.run_dir)}\n")
     if best:
-        out.write(f"best validation (step {best['steps']:,}): {validation_text(best, None)}\n")
+        searched = f", policy search iteration {best['search_iteration']:,}" if "search_iteration" in best else ""
+        out.write(f"best validation (step {best['steps']:,}{searched}): {validation_text(best, None)}\n")
     if result.never_succeeded:
         out.write(f"no validation succeeded ({len(result.curves)} on {result.config.validation_episodes:,} states, 0% at "
                   f"every tolerance): model.zip is the latest policy (step {best['steps']:,}); more steps, or the "

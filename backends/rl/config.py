@@ -15,6 +15,7 @@ from asap_dsl.sampling import EVAL_SEED
 
 from .presets import OFF_POLICY, discount, get_preset
 from .engines import ENGINES, REFERENCE, choose_engine
+from .policy_search import SEARCHABLE, SearchSettings
 from .validation import validation_states
 from . import hyper as _hyper
 
@@ -35,15 +36,16 @@ class ConfigError(ValueError):
 
 
 # What each stored field must be (the annotations, as text), and how a message names it.
-_STORED_TYPES = {"str": (str,), "int": (int,), "bool": (bool,), "dict[str, Any]": (dict,), "float": (int, float),
+_STORED_TYPES = {"Optional[dict[str, Any]]": (dict, type(None)), "str": (str,), "int": (int,), "bool": (bool,), "dict[str, Any]": (dict,), "float": (int, float),
                  "Optional[float]": (int, float, type(None)), "Optional[dict[str, str]]": (dict, type(None))}
-_TYPE_WORDS = {"str": "a text", "int": "a whole number", "bool": "true or false", "dict[str, Any]": "an object",
+_TYPE_WORDS = {"Optional[dict[str, Any]]": "an object or null", "str": "a text", "int": "a whole number", "bool": "true or false", "dict[str, Any]": "an object",
                "float": "a number",
                "Optional[float]": "a number or null", "Optional[dict[str, str]]": "an object or null"}
 
 # Fields added after sweeps were made, with the value that means "off": left out of a run's key
 # (:attr:`TrainConfig.key`) while off, so that a finished run is still found by a sweep.
-_KEY_WHEN_SET = {"plateau": None, "plateau_after": None, "stall_demonstrations": 0, "imitation": 0.0}
+_KEY_WHEN_SET = {"plateau": None, "plateau_after": None, "stall_demonstrations": 0, "imitation": 0.0,
+                 "policy_search": None}
 
 
 @dataclass
@@ -94,6 +96,9 @@ class TrainConfig:
     # Each state entry's scaling box (init, state or none: asap_dsl.observation); None in runs from
     # before it was recorded, which used observation_scaling's box for every entry.
     observation_sources: Optional[dict[str, str]] = None
+    # After the learner, evolution strategies on the best actor with these settings
+    # (:class:`.policy_search.SearchSettings`; None: no search).
+    policy_search: Optional[dict[str, Any]] = None
 
     def to_dict(self) -> dict:
         return asdict(self)
@@ -122,6 +127,11 @@ class TrainConfig:
             problem = setting_problem(name, data.get(name))
             if problem is not None:
                 raise ConfigError(f"the stored configuration's {problem}")
+        if data.get("policy_search") is not None:
+            try:
+                SearchSettings.from_dict(data["policy_search"])
+            except (TypeError, ValueError) as err:
+                raise ConfigError(f"the stored configuration's policy search: {err}") from None
         return cls(**{k: data[k] for k in names if k in data})
 
     def failure_reward_at(self, gamma: float) -> Optional[float]:
@@ -157,7 +167,8 @@ def resolve_config(prog, task: Optional[str] = None, *, algo: Optional[str] = No
                    n_envs: Optional[int] = None, settings: Optional[Mapping[str, Any]] = None,
                    eval_episodes: Optional[int] = None, time_limit: Optional[float] = None,
                    engine: Optional[str] = None, demonstrations: Optional[int] = None,
-                   failed_starts: Optional[float] = None, imitation: Optional[float] = None) -> TrainConfig:
+                   failed_starts: Optional[float] = None, imitation: Optional[float] = None,
+                   search_iterations: Optional[int] = None) -> TrainConfig:
     """Resolve the configuration of training ``task`` of ``prog``.
 
     ``settings`` are hyperparameters by their ``train { ... }`` names (they override the block
@@ -169,7 +180,9 @@ def resolve_config(prog, task: Optional[str] = None, *, algo: Optional[str] = No
     earlier one that did not reach (:mod:`.curriculum`; default: the preset's). ``imitation``: the
     weight of the actor's imitation of the oracle's paths (:mod:`.imitation`; default: the
     preset's; SAC on sbx with known dynamics only): their states are ``demonstrations`` or the
-    preset's ``imitation_states``, at the start, kept as they are. Raises
+    preset's ``imitation_states``, at the start, kept as they are. ``search_iterations``: the
+    policy search's iterations after the learner (:mod:`.policy_search`; default: the preset's,
+    at most one per ``search_steps`` training steps; 0: none; SAC, TD3 and DDPG on sbx). Raises
     :class:`ConfigError` (one sentence) or ``KeyError`` (unknown task).
     """
     t = prog.task(task).model  # KeyError with a suggestion on an unknown task
@@ -256,6 +269,7 @@ def resolve_config(prog, task: Optional[str] = None, *, algo: Optional[str] = No
         batch = int(hyper.get("batch_size", 64))
         if batch > rollout:
             hyper["batch_size"] = rollout  # a mini-batch cannot exceed the rollout
+    search = _policy_search(p, algo, engine, total, search_iterations)
     every = max(envs, (total // max(1, p.validations)) // envs * envs)
     scaling = t.observe_scaling or p.observation_scaling
     sources = dict(zip(prog.system.state_names, observation_sources(prog.system, t.init_box, scaling)))
@@ -278,7 +292,24 @@ def resolve_config(prog, task: Optional[str] = None, *, algo: Optional[str] = No
         imitation_seconds=p.demonstration_budget(time_limit, imitation=True) if imitation or sparse_imitation else None,
         imitation_states=int(p.imitation_states) if sparse_imitation else 0,
         failure_reward=_failure_reward(prog, t, model, hyper, p.failure_forever), plateau=p.plateau,
-        plateau_after=p.plateau_after if p.plateau is not None else None)
+        plateau_after=p.plateau_after if p.plateau is not None else None, policy_search=search)
+
+
+def _policy_search(p, algo: str, engine: str, steps: int, explicit: Optional[int]) -> Optional[dict[str, Any]]:
+    """The run's policy search settings (None: none): the preset's, with ``explicit`` iterations
+    (refused where the actor cannot be searched), else at most one per ``search_steps`` steps."""
+    if explicit is not None:
+        if isinstance(explicit, bool) or not isinstance(explicit, int) or explicit < 0:
+            raise ConfigError(f"the policy search's iterations must be a whole number, 0 or more; got {explicit!r}")
+        if explicit and (algo, engine) not in SEARCHABLE:
+            raise ConfigError(f"--search-iterations: the policy search perturbs the actor of SAC, TD3 or DDPG on the "
+                              f"sbx engine; this run trains {algo.upper()} on {engine}")
+    base = dict(p.policy_search or {})
+    iterations = explicit if explicit is not None else (
+        min(int(base.get("iterations", SearchSettings.iterations)), steps // max(1, p.search_steps)) if base else 0)
+    if not iterations or (algo, engine) not in SEARCHABLE:
+        return None
+    return SearchSettings.from_dict({**base, "iterations": int(iterations)}).to_dict()
 
 
 def _hyperparameters(preset: Mapping[str, Any], block: Mapping[str, Any], settings: Optional[Mapping[str, Any]],

@@ -97,6 +97,11 @@ class Preset:
     # ... and this share once the late rule found nothing (:mod:`.exploration`: a task whose dense
     # reward leads away from the goal; None: the discount stays).
     sparse_horizon: Optional[float] = None
+    # After the learner, evolution strategies on the best model's actor (:mod:`.policy_search`:
+    # :class:`~.policy_search.SearchSettings` by name; None: none), at most one iteration per
+    # ``search_steps`` of the run's training steps (a short run, a short search).
+    policy_search: Optional[Mapping[str, Any]] = None
+    search_steps: int = 2000
 
     def settings(self, algo: str, deadline: Optional[int] = None) -> dict[str, Any]:
         """The preset's settings of ``algo`` for a task with that ``deadline`` (in steps)."""

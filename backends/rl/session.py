@@ -11,6 +11,7 @@ import json
 import pickle
 import random
 import time
+from dataclasses import asdict
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Optional, Sequence
 
@@ -26,6 +27,7 @@ from .config import TrainConfig
 from .curriculum import failed_starts_env
 from .demonstrations import keep
 from .imitation import IMITATION_STATE_SECONDS, set_imitation
+from .policy_search import ActorFamily, PolicySearch, SearchSettings, SearchState
 from .presets import OFF_POLICY, get_preset
 from .engines import Engine, get_engine
 from .exploration import LateDemonstrations, add_late
@@ -64,7 +66,10 @@ def _save_checkpoint(run: RunDir, model, venv, algo: str, extra: dict, engine: E
             pickle.dump({"rng": _rng_state(venv, model, engine), **extra}, f)
 
     def state_json(path: Path) -> None:
-        summary = {k: v for k, v in extra.items() if k != "curves"}
+        summary = {k: v for k, v in extra.items() if k not in ("curves", "policy_search")}
+        if extra.get("policy_search") is not None:  # its parameters are the pickle's
+            summary["policy_search"] = {k: extra["policy_search"][k] for k in ("iteration", "best_score",
+                                                                               "best_iteration")}
         path.write_text(json.dumps(json_safe(summary), indent=2, allow_nan=False) + "\n", encoding="utf-8")
 
     files = {"model.zip": lambda path: model.save(str(path))}
@@ -100,7 +105,7 @@ def _callbacks():
                     return False
             if s.stop.signal is not None:
                 return False
-            if s.cfg.time_limit is not None and s.seconds >= s.cfg.time_limit:
+            if s.learning_seconds is not None and s.seconds >= s.learning_seconds:
                 s.time_up = True
                 return False
             if time.perf_counter() - s.last_checkpoint >= CHECKPOINT_SECONDS:  # noqa: SIM102
@@ -153,12 +158,22 @@ class Session:
         self.kept_rows = 0  # the demonstrations' rows of the replay buffer, never overwritten
         self.time_up = False
         self.plateau_step: Optional[int] = None  # where validation stopped improving, and the run ended
+        self.learned = False  # the learner is done for good (its steps, its plateau, its share of the time)
+        self.search: Optional[SearchState] = None  # the policy search's (:mod:`.policy_search`), once begun
         self.last_checkpoint = time.perf_counter()
         self.started = time.perf_counter()
 
     @property
     def seconds(self) -> float:
         return self.seconds_before + (time.perf_counter() - self.started)
+
+    @property
+    def learning_seconds(self) -> Optional[float]:
+        """When the learner stops on the clock: the time limit, less the policy search's share."""
+        if self.cfg.time_limit is None:
+            return None
+        share = 0.0 if self.cfg.policy_search is None else float(self.cfg.policy_search["time_share"])
+        return self.cfg.time_limit * (1.0 - share)
 
     @property
     def kept(self) -> list[tuple[int, int]]:
@@ -295,7 +310,8 @@ class Session:
         return {"steps": int(model.num_timesteps), "seconds": self.seconds, "best": self.best,
                 "curves": self.curves, "late_demonstrations": None if self.late is None else self.late.added,
                 "failed_starts": None if self.curriculum is None else self.curriculum.state(),
-                "demonstration_rows": self.kept_rows,
+                "demonstration_rows": self.kept_rows, "learned": self.learned,
+                "policy_search": None if self.search is None else asdict(self.search),
                 **self.schedule.to_dict()}
 
     def checkpoint(self, model, run: Optional[RunDir] = None) -> None:
@@ -332,6 +348,8 @@ class Session:
         if self.curriculum is not None and state.get("failed_starts") is not None:
             self.curriculum.restore(state["failed_starts"])
         self.seconds_before = float(state["seconds"])
+        self.learned = bool(state.get("learned", False))
+        self.search = None if state.get("policy_search") is None else SearchState(**state["policy_search"])
         if int(model.num_timesteps) != int(state["steps"]):
             raise RunError(f"{self.run.path}: the checkpoint is inconsistent (model at step {model.num_timesteps}, "
                            f"state at step {state['steps']}); train the run again with "
@@ -351,6 +369,10 @@ class Session:
                 model.learn(total_timesteps=remaining, callback=[_callbacks()(self), *self.extra_callbacks],
                             reset_num_timesteps=model.num_timesteps == 0, tb_log_name="train", progress_bar=False)
             stopped = self.stop.signal is not None
+            # Done for good (not a time limit's end, which a resume with more time continues, unless
+            # the search takes the rest of the time).
+            self.learned = not stopped and (int(model.num_timesteps) >= self.cfg.steps or self.plateau_step is not None
+                                            or (self.time_up and self.cfg.policy_search is not None))
             if not stopped and (not self.curves or self.curves[-1]["steps"] != model.num_timesteps):
                 self.validate(model, int(model.num_timesteps), getattr(model, "_logger", None))
             self.checkpoint(model)
@@ -365,6 +387,63 @@ class Session:
             self._tell(f"validation: {len(self.curves)} times, {spent:.1f} s of the run's {self.seconds:.1f} s "
                        f"({spent / max(self.seconds, 1e-9):.0%})")
         return "interrupted" if stopped else "finished"
+
+    # -- the policy search, after the learner
+    def search_due(self, manifest: dict) -> bool:
+        """Whether the run's policy search is still to do (its summary goes into the manifest at the end)."""
+        return self.cfg.policy_search is not None and "policy_search" not in manifest and self.best is not None
+
+    def policy_search(self, model) -> str:
+        """Evolution strategies on the best model's actor (:mod:`.policy_search`), from where a
+        checkpoint left it; the model the run keeps becomes the search's best only if it beats the
+        learner's on validation. Checkpointed as the learner is; ``model`` (the learner's latest)
+        is unchanged. Returns ``finished`` or ``interrupted``."""
+        settings = SearchSettings.from_dict(self.cfg.policy_search)
+        best = self.engine.load(self.cfg.algo, self.run.model_file())
+        family = ActorFamily(best, self.cfg.algo, self.scaling)
+        search = PolicySearch(self.prog, self.cfg.task, settings, family, self.validator, validation_score,
+                              reward=self.cfg.reward, gamma=float(model.gamma), failure_reward=self.failure_reward,
+                              seed=self.cfg.seed)
+        if self.search is None:
+            self.search = search.start(float(self.best["score"]))
+        state = self.search
+        self._tell(f"policy search: {settings.iterations:,} iterations of {settings.population} candidates on "
+                   f"{settings.batch} new states each ({settings.objective}), from the best model (validation score "
+                   f"{self.best['score']:.4f}); at iteration {state.iteration:,}")
+        started, before = time.perf_counter(), state.seconds
+        limit = self.cfg.time_limit
+        while state.iteration < settings.iterations and self.stop.signal is None:
+            if before + time.perf_counter() - started >= settings.seconds or (limit is not None and self.seconds >= limit):
+                break
+            state = search.iterate(state)
+            if state.iteration % settings.every == 0:
+                search.validate(state)
+            state.seconds = before + time.perf_counter() - started
+            self.search = state
+            if time.perf_counter() - self.last_checkpoint >= CHECKPOINT_SECONDS:
+                self.checkpoint(model)
+        if self.stop.signal is not None:
+            self.checkpoint(model)
+            return "interrupted"
+        if not state.validations or state.validations[-1]["iteration"] != state.iteration:
+            search.validate(state)  # the last parameters, as the learner's are
+        summary = {"iterations": state.iteration, "seconds": round(state.seconds, 3),
+                   "kept_iteration": state.best_iteration, "score_before": float(self.best["score"]),
+                   "score": round(state.best_score, 6), "validations": state.validations}
+        if state.best_iteration is not None:
+            last = next(r for r in state.validations if r["iteration"] == state.best_iteration)
+            self.best = {**self.best, "score": last["score"], "rates": last["rates"], "return": last["return"],
+                         "seconds": round(self.seconds, 3), "search_iteration": state.best_iteration}
+            family.install(best, state.best_theta)
+            self.run.save_model(lambda path: best.save(str(path)), best=self.best, policy_search=json_safe(summary))
+            self._tell(f"policy search: kept iteration {state.best_iteration:,} of {state.iteration:,} "
+                       f"(validation score {summary['score_before']:.4f} -> {state.best_score:.4f}) in {state.seconds:.0f} s")
+        else:
+            self.run.update_manifest(policy_search=json_safe(summary))
+            self._tell(f"policy search: {state.iteration:,} iterations in {state.seconds:.0f} s, none beat the "
+                       f"learner's model on validation; it stays")
+        self.checkpoint(model)
+        return "finished"
 
 
 def _wrapper_base():

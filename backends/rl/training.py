@@ -88,6 +88,11 @@ def _explicit_conflicts(stored: TrainConfig, fresh: TrainConfig, given: Mapping[
                 if stored.hyper.get(k) != v:
                     out.append(f"{k} = {v} (the run has {stored.hyper.get(k)})")
             continue
+        if name == "search_iterations":  # stored as the search's settings
+            if fresh.policy_search != stored.policy_search:
+                had = (stored.policy_search or {}).get("iterations", 0)
+                out.append(f"--search-iterations {value} (the run has {had})")
+            continue
         if getattr(fresh, name) != getattr(stored, name):
             out.append(f"--{name.replace('_', '-')} {getattr(fresh, name)} (the run has {getattr(stored, name)})")
     return out
@@ -101,7 +106,7 @@ def train(spec: Union[str, Path, Program], task: Optional[str] = None, *, algo: 
           evaluate: bool = True, eval_episodes: Optional[int] = None, callbacks: Sequence = (),
           time_limit: Optional[float] = None, engine: Optional[str] = None,
           demonstrations: Optional[int] = None, failed_starts: Optional[float] = None,
-          imitation: Optional[float] = None) -> TrainResult:
+          imitation: Optional[float] = None, search_iterations: Optional[int] = None) -> TrainResult:
     """Train ``task`` of a spec with stable-baselines3's API (on torch or JAX) and evaluate the
     best model.
 
@@ -145,6 +150,9 @@ def train(spec: Union[str, Path, Program], task: Optional[str] = None, *, algo: 
         (:mod:`asap_dsl.backends.rl.imitation`: SAC on the sbx engine, known dynamics; default: the
         preset's, 0 in both; 0: none). Its paths are the ``demonstrations`` states', or the preset's
         ``imitation_states``, all of them in the replay buffer from the start.
+    :param search_iterations: the policy search's iterations after the learner (evolution
+        strategies on the best actor, :mod:`asap_dsl.backends.rl.policy_search`; default: the
+        preset's; 0: none). Its model is kept only if it beats the learner's on validation.
     :return: the run's directory, configuration, steps, best validation and final evaluation.
     :raises asap_dsl.SpecError: the spec does not load.
     :raises ConfigError: a setting cannot be used (one sentence).
@@ -157,13 +165,13 @@ def train(spec: Union[str, Path, Program], task: Optional[str] = None, *, algo: 
         cfg = resolve_config(prog, task, algo=algo, reward=reward, steps=steps, seed=seed, preset=preset,
                              n_envs=n_envs, settings=settings, eval_episodes=eval_episodes, time_limit=time_limit,
                              engine=engine, demonstrations=demonstrations, failed_starts=failed_starts,
-                             imitation=imitation)
+                             imitation=imitation, search_iterations=search_iterations)
         _check_memory(prog, cfg)
         run = RunDir(out if out is not None else Path(runs_dir) / default_run_name(prog.file, cfg.task, cfg.algo,
                                                                                  cfg.reward, cfg.seed))
         given = {"task": task, "algo": algo, "engine": engine, "reward": reward, "seed": seed, "preset": preset,
                  "n_envs": n_envs, "demonstrations": demonstrations,
-                 "failed_starts": failed_starts, "imitation": imitation,
+                 "failed_starts": failed_starts, "imitation": imitation, "search_iterations": search_iterations,
                  "settings": _hyper.normalise(dict(settings or {}), "settings")}  # as the run stores them
         try:
             return _run(prog, cfg, run, stop, resume=resume, force=force, given=given, steps=steps,
@@ -189,6 +197,11 @@ def _check_memory(prog: Program, cfg: TrainConfig) -> None:
         if cfg.demonstrations:  # replayed side by side, each with an episode of transitions kept
             check_batch(prog, cfg.task, cfg.demonstrations, f"{cfg.demonstrations:,} demonstrations", cfg.reward,
                         4 * (prog.task(cfg.task).model.episode[1] + 1) * (2 * obs + act + 3))
+        search = cfg.policy_search
+        if search:  # its population's rollouts, one batched environment
+            check_batch(prog, cfg.task, search["population"] * search["batch"],
+                        f"the policy search's {search['population']} x {search['batch']} rollouts", cfg.reward,
+                        4 * 3 * width)
     except ResourceLimit as err:
         raise ConfigError(str(err)) from None
 
@@ -231,7 +244,10 @@ def _run(prog: Program, cfg: TrainConfig, run: RunDir, stop: Interrupts, *, resu
         with run.guard():
             model = session.restore(ckpt)
             m = run.read_manifest()
-            if m["status"] == "finished" and (cfg.steps <= int(model.num_timesteps) or "plateau_step" in m):
+            # Checkpoints from before ``learned`` was kept: a finished run that reached its steps or plateau.
+            session.learned = session.learned or (m["status"] == "finished" and (
+                cfg.steps <= int(model.num_timesteps) or "plateau_step" in m))
+            if session.learned and not session.search_due(m):
                 return _finished(run, cfg, session, evaluate)
             run.update_manifest(status="running", config=cfg.to_dict(), error=None)
     else:
@@ -261,7 +277,9 @@ def _run(prog: Program, cfg: TrainConfig, run: RunDir, stop: Interrupts, *, resu
         run.lock, run.interrupts = created.lock, stop  # the caller releases it
     try:
         with run.guard():
-            status = session.learn(model)
+            status = "finished" if session.learned else session.learn(model)
+            if status == "finished" and session.learned and session.search_due(run.read_manifest()):
+                status = session.policy_search(model)
             # A run that ended on the plateau is complete at fewer steps: resume and tune read this.
             ended = {} if session.plateau_step is None else {"plateau_step": int(session.plateau_step)}
             run.update_manifest(status=status, steps_done=int(model.num_timesteps),

@@ -1,0 +1,259 @@
+"""Direct policy search after the learner: evolution strategies on the actor's parameters.
+
+Why (docs/training.md, "Below its own reward's optimum"): where the oracle's path from a state
+arrives sooner than the policy SAC leaves, it is worth more under that policy's own reward, on
+every such state measured: the steps the policy loses are the learner's error (its critic's nearest
+hill), not the reward's bias. The task's own measure can be climbed directly instead: every
+candidate policy is judged by the one batched, compiled rollout, no critic in between.
+
+The search (Salimans et al., 2017, "Evolution strategies as a scalable alternative to RL"): from
+the best model's actor θ, each iteration draws ``population / 2`` Gaussian directions ε and judges
+θ ± σε on the same ``batch`` fresh initial states (a new seed each iteration, never the
+validation's nor the evaluation's); the fitnesses become centred ranks (the scale of the objective
+does not matter, an outlier does not steer), their ε-weighted sum the gradient estimate, and Adam
+the step. The objective (:data:`OBJECTIVES`) is the task's: how soon each state reaches its goal
+(``arrival``), or the discounted return of the run's reward (``return``). Every ``every``
+iterations the deterministic policy is judged on the run's validation states, as the learner's
+models are; the model kept is the best, and the search's only if it beats the learner's best.
+
+Each iteration is a pure function of :class:`SearchState` (parameters, Adam's moments, the random
+generator's state): a checkpoint holds it and a resumed run continues exactly.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import asdict, dataclass, field, fields
+from typing import Any, Mapping, Optional
+
+import numpy as np
+
+__all__ = ["OBJECTIVES", "SEARCH_SEEDS", "SEARCHABLE", "ActorFamily", "PolicySearch", "SearchSettings",
+           "SearchState", "centred_ranks", "rollout_batch"]
+
+#: The search's training states: seed ``SEARCH_SEEDS + 10,000 x run seed + iteration`` (never the
+#: validation's 7 nor the evaluation's 2024).
+SEARCH_SEEDS = 100_000
+
+#: (algorithm, engine) whose actor the search perturbs: deterministic given its parameters (SAC's
+#: mean action, TD3's and DDPG's action), on JAX, so that a population acts in one vectorised call.
+SEARCHABLE = (("sac", "sbx"), ("td3", "sbx"), ("ddpg", "sbx"))
+
+#: What each candidate's states are worth (higher is better):
+#: ``arrival``: minus the mean step at which the goal first holds, counting a state that never
+#: reaches it within the episode (or fails) as one step past the episode's end;
+#: ``return``: the mean discounted return of the run's reward (a failure step earning the run's
+#: failure reward, as in training).
+OBJECTIVES = ("arrival", "return")
+
+
+@dataclass(frozen=True)
+class SearchSettings:
+    """The search's settings (the preset's ``policy_search``; stored in the run's configuration)."""
+
+    iterations: int = 1000
+    population: int = 64      # candidates per iteration, in antithetic pairs
+    batch: int = 256          # fresh initial states per iteration, the same for every candidate
+    sigma: float = 0.01       # the perturbations' standard deviation, in parameter units
+    learning_rate: float = 0.003  # Adam's
+    every: int = 25           # iterations between validations
+    objective: str = "arrival"
+    # In a time-limited run the learner stops at ``1 - time_share`` of the limit and the search
+    # takes the rest; in any run it ends after ``seconds`` (a black box's rollouts are slow).
+    time_share: float = 0.25
+    seconds: float = 600.0
+
+    def __post_init__(self) -> None:
+        whole = all(isinstance(v, int) and not isinstance(v, bool) and v >= 1
+                    for v in (self.iterations, self.batch, self.every, self.population))
+        if not whole or self.population % 2:
+            raise ValueError("the policy search's iterations, batch and every take whole numbers of at least 1, its "
+                             "population an even one")
+        if not all(isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) and v > 0
+                   for v in (self.sigma, self.learning_rate)):
+            raise ValueError("the policy search's sigma and learning_rate take positive finite numbers")
+        if not (isinstance(self.time_share, (int, float)) and 0.0 < self.time_share < 1.0):
+            raise ValueError("the policy search's time_share is a share between 0 and 1")
+        if not (isinstance(self.seconds, (int, float)) and not isinstance(self.seconds, bool)
+                and 0.0 < self.seconds < math.inf):
+            raise ValueError("the policy search's seconds take a positive finite number")
+        if self.objective not in OBJECTIVES:
+            raise ValueError(f"the policy search's objective is one of {', '.join(OBJECTIVES)}; got {self.objective!r}")
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+    @classmethod
+    def from_dict(cls, data: Mapping[str, Any]) -> "SearchSettings":
+        names = {f.name for f in fields(cls)}
+        unknown = set(data) - names
+        if unknown:
+            raise ValueError(f"the policy search has no setting {', '.join(sorted(unknown))}")
+        return cls(**dict(data))
+
+
+@dataclass
+class SearchState:
+    """Everything the next iteration depends on; a checkpoint stores it whole."""
+
+    iteration: int
+    theta: np.ndarray
+    first: np.ndarray          # Adam's first moment
+    second: np.ndarray         # ... and second
+    rng: dict                  # the directions' generator's state
+    best_theta: np.ndarray
+    best_score: float          # the validation score to beat: the learner's best, then the search's
+    best_iteration: Optional[int] = None  # None: no search iterate has beaten the learner's best yet
+    seconds: float = 0.0
+    validations: list = field(default_factory=list)  # {"iteration", "score", "rates"} per validation
+
+
+def rollout_batch(evaluator, controller, states: np.ndarray, gamma: float, failure_reward: Optional[float]):
+    """Per row of ``states``: the discounted return of the evaluator's reward (a failure step
+    earning ``failure_reward``, as in training; None: the reward's own) and the step at which the
+    goal first holds (inf if never, or after a failure)."""
+    core = evaluator.core
+    T, m = evaluator.steps, core.system.n_action
+    obs = core.start(states, T)
+    controller.reset(core.states.copy())
+    n = len(states)
+    ret, disc = np.zeros(n), 1.0
+    running = np.ones(n, dtype=bool)
+    arrival = np.where(core.asap.sat, 0.0, np.inf)
+    for t in range(T):
+        if not running.any():
+            break
+        a = np.asarray(controller.act(obs, core.states.copy(), t), dtype=np.float64).reshape(n, m)
+        obs, r, failed, _, _, done = core.step(np.clip(a, core.system.action_low, core.system.action_high))
+        if failure_reward is not None:
+            r = np.where(failed, failure_reward, r)
+        ret += disc * r * running
+        newly = running & core.asap.step_sat & ~failed & ~np.isfinite(arrival)
+        arrival[newly] = t + 1
+        disc *= gamma
+        running &= ~done
+    return ret, arrival
+
+
+def centred_ranks(f: np.ndarray) -> np.ndarray:
+    """Ranks of ``f`` mapped onto [-0.5, 0.5], tied values sharing their mean rank (candidates
+    that did equally well pull no way: on a batch where none reaches, the step is nothing)."""
+    ranks = np.empty(len(f))
+    ranks[np.argsort(f, kind="stable")] = np.arange(len(f))
+    _, tie, counts = np.unique(f, return_inverse=True, return_counts=True)
+    ranks = (np.bincount(tie, ranks) / counts)[tie]
+    return ranks / max(1, len(f) - 1) - 0.5
+
+
+class ActorFamily:
+    """The actor's deterministic action for K parameter vectors at once (a controller for the
+    rollout: rows come in K equal blocks, block k acting with ``thetas[k]``)."""
+
+    def __init__(self, model, algo: str, scaling):
+        import jax
+        from jax.flatten_util import ravel_pytree
+
+        state = model.policy.actor_state
+        flat, self._unravel = ravel_pytree(state.params)
+        self.theta0 = np.asarray(flat, dtype=np.float64)
+        apply = state.apply_fn
+        mode = algo == "sac"  # SAC's actor gives a distribution: its mean action (tanh of the mean)
+        self._act = jax.jit(jax.vmap(lambda th, o: apply(self._unravel(th), o).mode() if mode
+                                     else apply(self._unravel(th), o)))
+        self.scaling = scaling
+        self.thetas = self.theta0[None]
+
+    def reset(self, states: np.ndarray) -> None:
+        pass
+
+    def act(self, obs: np.ndarray, states: np.ndarray, t: int) -> np.ndarray:
+        import jax.numpy as jnp
+
+        k = len(self.thetas)
+        o = self.scaling.observation(obs).astype(np.float32).reshape(k, len(obs) // k, -1)
+        u = np.asarray(self._act(jnp.asarray(self.thetas, dtype=jnp.float32), jnp.asarray(o)))
+        return self.scaling.action(u.reshape(len(obs), -1))
+
+    def install(self, model, theta: np.ndarray) -> None:
+        """``theta`` becomes ``model``'s actor's parameters."""
+        import jax.numpy as jnp
+
+        state = model.policy.actor_state
+        params = self._unravel(jnp.asarray(theta, dtype=jnp.float32))
+        model.policy.actor_state = state.replace(params=params)
+
+
+class PolicySearch:
+    """The search over one run's actor: :meth:`iterate` one step, :meth:`validate` the current
+    parameters; the caller decides when (the session: every ``settings.every`` iterations, and
+    stops, time limits and checkpoints). ``validator``: the run's validation evaluator; ``score``:
+    its rates' ranking (:func:`.validation.validation_score`)."""
+
+    def __init__(self, prog, task: str, settings: SearchSettings, family: ActorFamily, validator, score,
+                 *, reward: Any, gamma: float, failure_reward: Optional[float], seed: int):
+        from asap_dsl.rollout import Evaluator
+        from asap_dsl.sampling import task_states
+
+        self.prog, self.settings, self.family, self.validator, self.score = prog, settings, family, validator, score
+        self.model = prog.task(task).model
+        self.gamma, self.failure_reward, self.seed = float(gamma), failure_reward, int(seed)
+        self.tolerances = sorted(int(k) for k in self.model.tolerances)
+        K, B = settings.population, settings.batch
+        some = task_states(prog.system, self.model, 1, seed=SEARCH_SEEDS)
+        self.trainer = Evaluator(prog, task, np.repeat(some, K * B, axis=0), reward=reward)
+
+    def start(self, best_score: float) -> SearchState:
+        """A search from the family's parameters, to beat ``best_score`` on validation."""
+        theta = self.family.theta0.copy()
+        rng = np.random.default_rng([SEARCH_SEEDS, self.seed])
+        return SearchState(iteration=0, theta=theta, first=np.zeros_like(theta), second=np.zeros_like(theta),
+                           rng=rng.bit_generator.state, best_theta=theta.copy(), best_score=float(best_score))
+
+    def fitness(self, returns: np.ndarray, arrival: np.ndarray) -> np.ndarray:
+        """Each candidate's worth (higher is better) from its rows' returns and arrival steps."""
+        K = self.settings.population
+        if self.settings.objective == "return":
+            return returns.reshape(K, -1).mean(axis=1)
+        late = float(self.trainer.steps + 1)  # never reached: one step past the episode
+        return -np.minimum(arrival, late).reshape(K, -1).mean(axis=1)
+
+    def iterate(self, state: SearchState) -> SearchState:
+        """One iteration: the population judged on fresh states, one Adam step. Pure in ``state``."""
+        from asap_dsl.sampling import task_states
+
+        s = self.settings
+        K, it = s.population, state.iteration
+        rng = np.random.default_rng()
+        rng.bit_generator.state = state.rng
+        eps = rng.standard_normal((K // 2, len(state.theta)))
+        eps = np.concatenate([eps, -eps])
+        x0 = task_states(self.prog.system, self.model, s.batch, seed=SEARCH_SEEDS + 10_000 * self.seed + it)
+        self.family.thetas = state.theta[None] + s.sigma * eps
+        returns, arrival = rollout_batch(self.trainer, self.family, np.tile(x0, (K, 1)), self.gamma,
+                                         self.failure_reward)
+        f = self.fitness(returns, arrival)
+        grad = (centred_ranks(f) @ eps) / (K * s.sigma)
+        first = 0.9 * state.first + 0.1 * grad
+        second = 0.999 * state.second + 0.001 * grad ** 2
+        step = (first / (1 - 0.9 ** (it + 1))) / (np.sqrt(second / (1 - 0.999 ** (it + 1))) + 1e-8)
+        return SearchState(iteration=it + 1, theta=state.theta + s.learning_rate * step, first=first, second=second,
+                           rng=rng.bit_generator.state, best_theta=state.best_theta, best_score=state.best_score,
+                           best_iteration=state.best_iteration, seconds=state.seconds,
+                           validations=list(state.validations))
+
+    def validate(self, state: SearchState) -> dict:
+        """The current parameters on the validation states; the best kept in ``state`` if they
+        beat it (strictly: a tie keeps what came first, the learner's model). Returns the row."""
+        t0 = time.perf_counter()
+        self.family.thetas = state.theta[None]
+        res = self.validator.run(self.family)
+        rates = {T: res.rate(T) for T in self.tolerances}
+        score = float(self.score(rates))
+        row = {"iteration": state.iteration, "score": round(score, 6), "rates": rates,
+               "return": round(float(np.mean(res.returns)), 6), "seconds": round(time.perf_counter() - t0, 3)}
+        if score > state.best_score:
+            state.best_theta, state.best_score, state.best_iteration = state.theta.copy(), score, state.iteration
+            row["best"] = 1
+        state.validations.append(row)
+        return row

@@ -1,0 +1,176 @@
+"""The policy search after the learner (backends/rl/policy_search.py): its settings, its steps, and
+its place in a run (kept only if it beats the learner on validation, resumed exactly)."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+
+import numpy as np
+import pytest
+
+import asap_dsl
+from asap_dsl.backends.rl.config import ConfigError, resolve_config
+from asap_dsl.runs import RunDir
+
+from conftest import RAIL
+
+pytest.importorskip("sbx")
+
+FAST = {"learning_starts": 100, "batch_size": 64, "net_arch": [32, 32]}
+
+
+def _search(settings, seed: int = 0):
+    """A policy search on the rail from an untrained SAC actor, judged on 200 validation states."""
+    from asap_dsl.backends.rl.engines import get_engine
+    from asap_dsl.backends.rl.policy_search import ActorFamily, PolicySearch
+    from asap_dsl.backends.rl.sb3 import Scaling, ScaledVecEnv
+    from asap_dsl.backends.rl.validation import validation_score
+    from asap_dsl.env import make_vec_env
+    from asap_dsl.rollout import Evaluator
+    from asap_dsl.sampling import task_states
+
+    prog = asap_dsl.loads(RAIL, "rail.asap")
+    cfg = resolve_config(prog, steps=2000)
+    task = prog.task(None).model
+    scaling = Scaling.for_run(prog.system, cfg, task.init_box)
+    env = ScaledVecEnv(make_vec_env(prog, cfg.task, num_envs=2, seed=0), scaling)
+    model = get_engine("sbx").build("sac", env, cfg.hyper, seed)
+    validator = Evaluator(prog, cfg.task, task_states(prog.system, task, 200, seed=7), reward=cfg.reward)
+    family = ActorFamily(model, "sac", scaling)
+    search = PolicySearch(prog, cfg.task, settings, family, validator, validation_score, reward=cfg.reward,
+                          gamma=0.9, failure_reward=None, seed=seed)
+    return search, model
+
+
+def test_the_search_climbs_the_arrival_from_an_untrained_actor():
+    from asap_dsl.backends.rl.policy_search import SearchSettings
+
+    search, _ = _search(SearchSettings(iterations=40, population=32, batch=64, sigma=0.1, learning_rate=0.03))
+    state = search.start(0.0)
+    before = search.validate(state)["score"]
+    for _ in range(40):
+        state = search.iterate(state)
+    after = search.validate(state)["score"]
+    assert after > before + 0.3, (before, after)
+    assert state.best_iteration == 40 and state.best_score == pytest.approx(after, abs=1e-6)
+
+
+def test_an_iteration_depends_on_its_state_alone():
+    import pickle
+    from dataclasses import asdict
+
+    from asap_dsl.backends.rl.policy_search import SearchSettings, SearchState
+
+    settings = SearchSettings(iterations=4, population=8, batch=16)
+    search, _ = _search(settings)
+    straight = search.start(0.0)
+    for _ in range(4):
+        straight = search.iterate(straight)
+    halfway = search.start(0.0)
+    for _ in range(2):
+        halfway = search.iterate(halfway)
+    kept = pickle.loads(pickle.dumps(asdict(halfway)))  # as a checkpoint keeps it
+    again, _ = _search(settings)  # a new process's search
+    resumed = SearchState(**kept)
+    for _ in range(2):
+        resumed = again.iterate(resumed)
+    assert resumed.iteration == 4
+    np.testing.assert_array_equal(resumed.theta, straight.theta)
+    np.testing.assert_array_equal(resumed.second, straight.second)
+    assert not np.array_equal(straight.theta, search.family.theta0)
+
+
+def test_tied_candidates_pull_no_way():
+    from asap_dsl.backends.rl.policy_search import centred_ranks
+
+    assert np.all(centred_ranks(np.full(6, 21.0)) == 0.0)
+    r = centred_ranks(np.array([1.0, 3.0, 3.0, 2.0]))
+    np.testing.assert_allclose(r, [-0.5, 1 / 3, 1 / 3, -1 / 6])
+    assert r.sum() == pytest.approx(0.0)
+
+
+@pytest.mark.parametrize("change, words", [
+    ({"population": 7}, "population an even one"),
+    ({"sigma": -0.1}, "sigma and learning_rate"),
+    ({"learning_rate": float("nan")}, "sigma and learning_rate"),
+    ({"objective": "speed"}, "one of arrival, return"),
+    ({"time_share": 1.0}, "time_share"),
+    ({"gait": 3}, "no setting gait"),
+])
+def test_bad_settings_are_refused_in_words(change, words):
+    from asap_dsl.backends.rl.policy_search import SearchSettings
+
+    with pytest.raises(ValueError, match=words):
+        SearchSettings.from_dict({**SearchSettings().to_dict(), **change})
+
+
+def test_the_run_configuration_of_the_search():
+    prog = asap_dsl.loads(RAIL, "rail.asap")
+    cfg = resolve_config(prog, steps=40_000, search_iterations=7)
+    assert cfg.policy_search["iterations"] == 7 and cfg.key["policy_search"]["iterations"] == 7
+    assert resolve_config(prog, steps=40_000, search_iterations=0).policy_search is None
+    assert "policy_search" not in resolve_config(prog, steps=40_000, search_iterations=0).key  # runs before it match
+    with pytest.raises(ConfigError, match="SAC, TD3 or DDPG on the sbx engine; this run trains PPO"):
+        resolve_config(prog, steps=40_000, algo="ppo", search_iterations=5)
+    with pytest.raises(ConfigError, match="whole number, 0 or more"):
+        resolve_config(prog, steps=40_000, search_iterations=-1)
+    assert resolve_config(prog, steps=40_000, algo="td3", search_iterations=5).policy_search["iterations"] == 5
+
+
+def test_the_search_in_a_run_is_kept_only_if_it_beats_the_learner(tiny, tmp_path):
+    out = tmp_path / "run"
+    res = asap_dsl.train(tiny, steps=600, n_envs=2, out=out, settings=FAST, evaluate=False, search_iterations=30)
+    manifest = RunDir(out).read_manifest()
+    record = manifest["policy_search"]
+    assert res.status == "finished" and record["iterations"] == 30 and len(record["validations"]) == 2
+    learner = max(r["score"] for r in res.curves)
+    assert record["score_before"] == pytest.approx(learner)
+    if record["kept_iteration"] is None:
+        assert manifest["best"]["score"] == pytest.approx(learner) and "search_iteration" not in manifest["best"]
+    else:
+        kept = next(r for r in record["validations"] if r["iteration"] == record["kept_iteration"])
+        assert kept["score"] > learner and manifest["best"]["score"] == pytest.approx(kept["score"])
+        assert manifest["best"]["search_iteration"] == record["kept_iteration"]
+    # The kept model is what evaluation loads: its validation is the record's.
+    from asap_dsl.backends.rl.evaluation import load_run
+    from asap_dsl.rollout import Evaluator
+    from asap_dsl.sampling import task_states
+
+    loaded = load_run(out)
+    prog = loaded.program
+    task = prog.task(None).model
+    states = task_states(prog.system, task, loaded.config.validation_episodes, seed=7)
+    rates = Evaluator(prog, "go", states, reward=loaded.config.reward).run(loaded.controller())
+    assert np.mean([rates.rate(T) for T in (5, 10, 20)]) == pytest.approx(manifest["best"]["score"], abs=1e-6)
+    # Resumed once done: nothing more to do.
+    again = asap_dsl.train(tiny, out=out, resume=True, evaluate=False)
+    assert again.status == "finished" and RunDir(out).read_manifest()["policy_search"] == record
+
+
+def test_a_search_stopped_midway_resumes_where_it_stopped(tiny, tmp_path, monkeypatch):
+    from asap_dsl.backends.rl import policy_search as ps
+
+    straight = tmp_path / "straight"
+    asap_dsl.train(tiny, steps=600, n_envs=2, out=straight, settings=FAST, evaluate=False, search_iterations=30)
+    iterate = ps.PolicySearch.iterate
+
+    def stopping(self, state):  # SIGTERM, as a scheduler sends it, after the 12th iteration
+        state = iterate(self, state)
+        if state.iteration == 12:
+            os.kill(os.getpid(), signal.SIGTERM)
+        return state
+
+    out = tmp_path / "stopped"
+    monkeypatch.setattr(ps.PolicySearch, "iterate", stopping)
+    res = asap_dsl.train(tiny, steps=600, n_envs=2, out=out, settings=FAST, evaluate=False, search_iterations=30)
+    assert res.status == "interrupted"
+    state = json.loads((out / "checkpoint" / "state.json").read_text())
+    assert state["policy_search"]["iteration"] == 12 and state["learned"] is True
+    monkeypatch.setattr(ps.PolicySearch, "iterate", iterate)
+    res = asap_dsl.train(tiny, out=out, resume=True, evaluate=False)
+    assert res.status == "finished" and res.steps == 600  # the learner did not train again
+    a, b = (RunDir(p).read_manifest()["policy_search"] for p in (straight, out))
+    assert [r["score"] for r in a["validations"]] == [r["score"] for r in b["validations"]]
+    assert a["kept_iteration"] == b["kept_iteration"]
