@@ -147,6 +147,11 @@ def test_the_search_in_a_run_is_kept_only_if_it_beats_the_learner(tiny, tmp_path
     # Resumed once done: nothing more to do.
     again = asap_dsl.train(tiny, out=out, resume=True, evaluate=False)
     assert again.status == "finished" and RunDir(out).read_manifest()["policy_search"] == record
+    # Resumed with more steps: the learner trains them, then a new search from the best model.
+    more = asap_dsl.train(tiny, out=out, resume=True, steps=800, evaluate=False)
+    assert more.status == "finished" and more.steps == 800 and max(r["steps"] for r in more.curves) == 800
+    again = RunDir(out).read_manifest()["policy_search"]
+    assert again["iterations"] == 30 and again["score_before"] >= record["score"] - 1e-9
 
 
 def test_a_search_stopped_midway_resumes_where_it_stopped(tiny, tmp_path, monkeypatch):

@@ -269,7 +269,7 @@ def resolve_config(prog, task: Optional[str] = None, *, algo: Optional[str] = No
         batch = int(hyper.get("batch_size", 64))
         if batch > rollout:
             hyper["batch_size"] = rollout  # a mini-batch cannot exceed the rollout
-    search = _policy_search(p, algo, engine, total, search_iterations)
+    search = _policy_search(p, algo, engine, total, search_iterations, black_box=searcher(prog) != "oracle")
     every = max(envs, (total // max(1, p.validations)) // envs * envs)
     scaling = t.observe_scaling or p.observation_scaling
     sources = dict(zip(prog.system.state_names, observation_sources(prog.system, t.init_box, scaling)))
@@ -295,9 +295,12 @@ def resolve_config(prog, task: Optional[str] = None, *, algo: Optional[str] = No
         plateau_after=p.plateau_after if p.plateau is not None else None, policy_search=search)
 
 
-def _policy_search(p, algo: str, engine: str, steps: int, explicit: Optional[int]) -> Optional[dict[str, Any]]:
+def _policy_search(p, algo: str, engine: str, steps: int, explicit: Optional[int],
+                   black_box: bool) -> Optional[dict[str, Any]]:
     """The run's policy search settings (None: none): the preset's, with ``explicit`` iterations
-    (refused where the actor cannot be searched), else at most one per ``search_steps`` steps."""
+    (refused where the actor cannot be searched), else at most one per ``search_steps`` steps and
+    not on a black box: the swimmer's 16,384 rollouts of an iteration took 73 s (a compiled ODE's
+    0.3 s), a thousand iterations most of a day."""
     if explicit is not None:
         if isinstance(explicit, bool) or not isinstance(explicit, int) or explicit < 0:
             raise ConfigError(f"the policy search's iterations must be a whole number, 0 or more; got {explicit!r}")
@@ -306,7 +309,8 @@ def _policy_search(p, algo: str, engine: str, steps: int, explicit: Optional[int
                               f"sbx engine; this run trains {algo.upper()} on {engine}")
     base = dict(p.policy_search or {})
     iterations = explicit if explicit is not None else (
-        min(int(base.get("iterations", SearchSettings.iterations)), steps // max(1, p.search_steps)) if base else 0)
+        min(int(base.get("iterations", SearchSettings.iterations)), steps // max(1, p.search_steps))
+        if base and not black_box else 0)
     if not iterations or (algo, engine) not in SEARCHABLE:
         return None
     return SearchSettings.from_dict({**base, "iterations": int(iterations)}).to_dict()

@@ -60,9 +60,10 @@ class SearchSettings:
     every: int = 25           # iterations between validations
     objective: str = "arrival"
     # In a time-limited run the learner stops at ``1 - time_share`` of the limit and the search
-    # takes the rest; in any run it ends after ``seconds`` (a black box's rollouts are slow).
+    # takes the rest; with ``seconds`` it also ends after that many (None: its iterations alone
+    # bound it, the same on every machine).
     time_share: float = 0.25
-    seconds: float = 600.0
+    seconds: Optional[float] = None
 
     def __post_init__(self) -> None:
         whole = all(isinstance(v, int) and not isinstance(v, bool) and v >= 1
@@ -75,9 +76,9 @@ class SearchSettings:
             raise ValueError("the policy search's sigma and learning_rate take positive finite numbers")
         if not (isinstance(self.time_share, (int, float)) and 0.0 < self.time_share < 1.0):
             raise ValueError("the policy search's time_share is a share between 0 and 1")
-        if not (isinstance(self.seconds, (int, float)) and not isinstance(self.seconds, bool)
-                and 0.0 < self.seconds < math.inf):
-            raise ValueError("the policy search's seconds take a positive finite number")
+        if self.seconds is not None and not (isinstance(self.seconds, (int, float)) and not isinstance(self.seconds, bool)
+                                             and 0.0 < self.seconds < math.inf):
+            raise ValueError("the policy search's seconds take a positive finite number or none")
         if self.objective not in OBJECTIVES:
             raise ValueError(f"the policy search's objective is one of {', '.join(OBJECTIVES)}; got {self.objective!r}")
 

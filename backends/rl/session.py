@@ -382,6 +382,7 @@ class Session:
         if self.plateau_step is not None:
             self._tell(f"validation stopped improving: the run ends at step {self.plateau_step:,} of "
                        f"{self.cfg.steps:,} (no gain over the latest {self.cfg.plateau:.0%} of its steps)")
+        self._tell_no_search()
         if self.curves:
             spent = self.schedule.spent
             self._tell(f"validation: {len(self.curves)} times, {spent:.1f} s of the run's {self.seconds:.1f} s "
@@ -389,9 +390,21 @@ class Session:
         return "interrupted" if stopped else "finished"
 
     # -- the policy search, after the learner
+    def _tell_no_search(self) -> None:
+        """Say why a run has not the preset's policy search (not when it was turned off)."""
+        from .policy_search import SEARCHABLE
+
+        if self.cfg.policy_search is not None or not get_preset(self.cfg.preset).policy_search:
+            return
+        if self.prog.system.kind == "simulator":
+            self._tell("policy search: none on a black box (its rollouts are too slow; --search-iterations N runs it)")
+        elif (self.cfg.algo, self.cfg.engine) not in SEARCHABLE:
+            self._tell(f"policy search: none (it searches the actor of SAC, TD3 or DDPG on sbx; this run trains "
+                       f"{self.cfg.algo.upper()} on {self.cfg.engine})")
+
     def search_due(self, manifest: dict) -> bool:
         """Whether the run's policy search is still to do (its summary goes into the manifest at the end)."""
-        return self.cfg.policy_search is not None and "policy_search" not in manifest and self.best is not None
+        return self.cfg.policy_search is not None and manifest.get("policy_search") is None and self.best is not None
 
     def policy_search(self, model) -> str:
         """Evolution strategies on the best model's actor (:mod:`.policy_search`), from where a
@@ -413,7 +426,8 @@ class Session:
         started, before = time.perf_counter(), state.seconds
         limit = self.cfg.time_limit
         while state.iteration < settings.iterations and self.stop.signal is None:
-            if before + time.perf_counter() - started >= settings.seconds or (limit is not None and self.seconds >= limit):
+            spent = before + time.perf_counter() - started
+            if (settings.seconds is not None and spent >= settings.seconds) or (limit is not None and self.seconds >= limit):
                 break
             state = search.iterate(state)
             if state.iteration % settings.every == 0:

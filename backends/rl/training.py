@@ -244,11 +244,16 @@ def _run(prog: Program, cfg: TrainConfig, run: RunDir, stop: Interrupts, *, resu
         with run.guard():
             model = session.restore(ckpt)
             m = run.read_manifest()
-            # Checkpoints from before ``learned`` was kept: a finished run that reached its steps or plateau.
-            session.learned = session.learned or (m["status"] == "finished" and (
-                cfg.steps <= int(model.num_timesteps) or "plateau_step" in m))
+            # The learner is done at its steps (a resume may raise them) or its plateau, or once the
+            # policy search began (in a time-limited run it takes the rest of the time).
+            ended = m["status"] == "finished" or session.learned
+            session.learned = ended and (cfg.steps <= int(model.num_timesteps) or "plateau_step" in m
+                                         or (session.learned and session.search is not None))
             if session.learned and not session.search_due(m):
                 return _finished(run, cfg, session, evaluate)
+            if not session.learned and session.search is not None:  # more steps: a new search after them
+                session.search = None
+                run.update_manifest(policy_search=None)
             run.update_manifest(status="running", config=cfg.to_dict(), error=None)
     else:
         if check_target(run.path, force) or run.path.is_dir():  # refused before anything is built
