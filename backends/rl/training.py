@@ -244,11 +244,13 @@ def _run(prog: Program, cfg: TrainConfig, run: RunDir, stop: Interrupts, *, resu
         with run.guard():
             model = session.restore(ckpt)
             m = run.read_manifest()
-            # The learner is done at its steps (a resume may raise them) or its plateau, or once the
-            # policy search began (in a time-limited run it takes the rest of the time).
+            # The learner is done at its steps (a resume may raise them) or its plateau, or while the
+            # policy search it handed over to is under way (in a time-limited run it takes the rest
+            # of the time).
             ended = m["status"] == "finished" or session.learned
+            searching = session.search is not None and m.get("policy_search") is None
             session.learned = ended and (cfg.steps <= int(model.num_timesteps) or "plateau_step" in m
-                                         or (session.learned and session.search is not None))
+                                         or (session.learned and searching))
             if session.learned and not session.search_due(m):
                 return _finished(run, cfg, session, evaluate)
             if not session.learned and session.search is not None:  # more steps: a new search after them
