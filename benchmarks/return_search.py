@@ -81,14 +81,20 @@ def search(args, loaded) -> int:
                           gamma=float(cfg.hyper["gamma"]), failure_reward=cfg.failure_reward, seed=args.seed)
     state = search.start(-1.0)  # the policy itself is the first validation's
     t0 = time.time()
-    while True:
-        if state.iteration % args.every == 0 or state.iteration == args.iterations:
-            row = search.validate(state)
+
+    shown: set = set()
+
+    def show(state) -> None:
+        row = state.validations[-1]
+        if row["iteration"] == state.iteration and row["iteration"] not in shown:
+            shown.add(row["iteration"])
             print(json.dumps({"iteration": state.iteration, "validation": row["rates"], "return": row["return"],
                               "seconds": round(time.time() - t0, 1)}), flush=True)
-        if state.iteration == args.iterations:
-            break
-        state = search.iterate(state)
+
+    search.validate(state)
+    show(state)
+    state = search.finish(search.run(state, lambda: False, show))
+    show(state)
     evaluator = Evaluator(prog, cfg.task, task_states(prog.system, model, 1000, seed=EVAL_SEED), reward=cfg.reward)
 
     def judge(theta):

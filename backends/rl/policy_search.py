@@ -25,7 +25,7 @@ from __future__ import annotations
 import math
 import time
 from dataclasses import asdict, dataclass, field, fields
-from typing import Any, Mapping, Optional
+from typing import Any, Callable, Mapping, Optional
 
 import numpy as np
 
@@ -108,6 +108,16 @@ class SearchState:
     best_iteration: Optional[int] = None  # None: no search iterate has beaten the learner's best yet
     seconds: float = 0.0
     validations: list = field(default_factory=list)  # {"iteration", "score", "rates"} per validation
+
+    def summary(self, score_before: float) -> dict:
+        """What the run's manifest records of the search (``policy_search``)."""
+        return {"iterations": self.iteration, "seconds": round(self.seconds, 3), "kept_iteration": self.best_iteration,
+                "score_before": float(score_before), "score": round(self.best_score, 6),
+                "validations": self.validations}
+
+    def kept(self) -> Optional[dict]:
+        """The validation row of the iteration kept (None: the learner's model stays)."""
+        return next((r for r in self.validations if r["iteration"] == self.best_iteration), None)
 
 
 def rollout_batch(evaluator, controller, states: np.ndarray, gamma: float, failure_reward: Optional[float]):
@@ -258,3 +268,25 @@ class PolicySearch:
             row["best"] = 1
         state.validations.append(row)
         return row
+
+    def run(self, state: SearchState, stopped: Callable[[], bool], after: Callable[[SearchState], None]) -> SearchState:
+        """Iterate from ``state`` to the settings' iterations (or their seconds), validating every
+        ``every``; ``stopped()`` ends it early (a signal, a time limit) and ``after(state)`` follows
+        each iteration (the caller checkpoints when one is due). :meth:`finish` validates the last."""
+        s = self.settings
+        started, before = time.perf_counter(), state.seconds
+        while state.iteration < s.iterations and not stopped():
+            if s.seconds is not None and before + time.perf_counter() - started >= s.seconds:
+                break
+            state = self.iterate(state)
+            if state.iteration % s.every == 0:
+                self.validate(state)
+            state.seconds = before + time.perf_counter() - started
+            after(state)
+        return state
+
+    def finish(self, state: SearchState) -> SearchState:
+        """The last parameters validated, as the learner's are at its end."""
+        if not state.validations or state.validations[-1]["iteration"] != state.iteration:
+            self.validate(state)
+        return state

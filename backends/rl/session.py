@@ -423,37 +423,30 @@ class Session:
         self._tell(f"policy search: {settings.iterations:,} iterations of {settings.population} candidates on "
                    f"{settings.batch} new states each ({settings.objective}), from the best model (validation score "
                    f"{self.best['score']:.4f}); at iteration {state.iteration:,}")
-        started, before = time.perf_counter(), state.seconds
         limit = self.cfg.time_limit
-        while state.iteration < settings.iterations and self.stop.signal is None:
-            spent = before + time.perf_counter() - started
-            if (settings.seconds is not None and spent >= settings.seconds) or (limit is not None and self.seconds >= limit):
-                break
-            state = search.iterate(state)
-            if state.iteration % settings.every == 0:
-                search.validate(state)
-            state.seconds = before + time.perf_counter() - started
+
+        def after(state: SearchState) -> None:
             self.search = state
             if time.perf_counter() - self.last_checkpoint >= CHECKPOINT_SECONDS:
                 self.checkpoint(model)
+
+        state = search.run(state, lambda: self.stop.signal is not None or (limit is not None and self.seconds >= limit),
+                           after)
         if self.stop.signal is not None:
             self.checkpoint(model)
             return "interrupted"
-        if not state.validations or state.validations[-1]["iteration"] != state.iteration:
-            search.validate(state)  # the last parameters, as the learner's are
-        summary = {"iterations": state.iteration, "seconds": round(state.seconds, 3),
-                   "kept_iteration": state.best_iteration, "score_before": float(self.best["score"]),
-                   "score": round(state.best_score, 6), "validations": state.validations}
-        if state.best_iteration is not None:
-            last = next(r for r in state.validations if r["iteration"] == state.best_iteration)
-            self.best = {**self.best, "score": last["score"], "rates": last["rates"], "return": last["return"],
+        self.search = state = search.finish(state)
+        summary = json_safe(state.summary(self.best["score"]))
+        kept = state.kept()
+        if kept is not None:
+            self.best = {**self.best, "score": kept["score"], "rates": kept["rates"], "return": kept["return"],
                          "seconds": round(self.seconds, 3), "search_iteration": state.best_iteration}
             family.install(best, state.best_theta)
-            self.run.save_model(lambda path: best.save(str(path)), best=self.best, policy_search=json_safe(summary))
+            self.run.save_model(lambda path: best.save(str(path)), best=self.best, policy_search=summary)
             self._tell(f"policy search: kept iteration {state.best_iteration:,} of {state.iteration:,} "
                        f"(validation score {summary['score_before']:.4f} -> {state.best_score:.4f}) in {state.seconds:.0f} s")
         else:
-            self.run.update_manifest(policy_search=json_safe(summary))
+            self.run.update_manifest(policy_search=summary)
             self._tell(f"policy search: {state.iteration:,} iterations in {state.seconds:.0f} s, none beat the "
                        f"learner's model on validation; it stays")
         self.checkpoint(model)
