@@ -15,7 +15,7 @@ Two probes over a run of SAC on the sbx engine (docs/training.md, "Below its own
 
     .venv/bin/python benchmarks/return_search.py headroom RUN [--states 300] [--seed 4242] [--workers 2]
     .venv/bin/python benchmarks/return_search.py search RUN [--iterations 1000] [--population 64]
-        [--batch 256] [--sigma 0.01] [--lr 0.003] [--every 25] [--seed 555] [--objective arrival]
+        [--batch 256] [--sigma 0.01] [--lr 0.003] [--every 25] [--seed 555] [--objective arrival] [--validation N]
 """
 
 from __future__ import annotations
@@ -75,7 +75,7 @@ def search(args, loaded) -> int:
     settings = SearchSettings(iterations=args.iterations, population=args.population, batch=args.batch,
                               sigma=args.sigma, learning_rate=args.lr, every=args.every, objective=args.objective)
     family = ActorFamily(loaded.model, cfg.algo, loaded.scaling)
-    val_states = task_states(prog.system, model, cfg.validation_episodes, seed=cfg.validation_seed)
+    val_states = task_states(prog.system, model, args.validation or cfg.validation_episodes, seed=cfg.validation_seed)
     validator = Evaluator(prog, cfg.task, val_states, reward=cfg.reward)
     search = PolicySearch(prog, cfg.task, settings, family, validator, validation_score, reward=cfg.reward,
                           gamma=float(cfg.hyper["gamma"]), failure_reward=cfg.failure_reward, seed=args.seed)
@@ -128,6 +128,7 @@ def main() -> int:
     s.add_argument("--every", type=int, default=25)
     s.add_argument("--seed", type=int, default=555)
     s.add_argument("--objective", choices=("arrival", "return"), default="arrival")
+    s.add_argument("--validation", type=int, default=0, help="validation states (default: the run's)")
     args = ap.parse_args()
     from asap_dsl.backends.rl.config import VALIDATION_SEED
     from asap_dsl.backends.rl.evaluation import load_run
@@ -142,9 +143,10 @@ def main() -> int:
             f"the evaluation's ({EVAL_SEED}) nor the validation's ({VALIDATION_SEED})")
     else:
         positive = all(math.isfinite(x) and x > 0 for x in (args.sigma, args.lr))
-        bad = "" if (args.iterations >= 1 and args.population >= 2 and args.population % 2 == 0 and args.batch >= 1
+        bad = "" if (args.iterations >= 1 and args.validation >= 0 and args.population >= 2 and args.population % 2 == 0 and args.batch >= 1
                      and args.every >= 1 and args.seed >= 0 and positive) else (
-            "--iterations, --batch and --every take positive whole numbers, --population an even one of at least 2, "
+            "--iterations, --batch and --every take positive whole numbers, --validation 0 or more, --population an even "
+            "one of at least 2, "
             "--sigma and --lr positive finite numbers, --seed a whole number of at least 0")
     if bad:
         print(f"return_search: {bad}", file=sys.stderr)
