@@ -82,6 +82,30 @@ def test_an_iteration_depends_on_its_state_alone():
     assert not np.array_equal(straight.theta, search.family.theta0)
 
 
+@pytest.mark.parametrize("algo", ["sac", "td3", "ddpg"])
+def test_the_family_acts_as_the_policy_the_run_evaluates(algo):
+    from asap_dsl.backends.rl.engines import get_engine
+    from asap_dsl.backends.rl.policy_search import ActorFamily
+    from asap_dsl.backends.rl.sb3 import PolicyController, Scaling, ScaledVecEnv
+    from asap_dsl.env import make_vec_env
+
+    prog = asap_dsl.loads(RAIL, "rail.asap")
+    cfg = resolve_config(prog, steps=2000, algo=algo)
+    scaling = Scaling.for_run(prog.system, cfg, prog.task(None).model.init_box)
+    model = get_engine("sbx").build(algo, ScaledVecEnv(make_vec_env(prog, cfg.task, num_envs=2, seed=0), scaling),
+                                    cfg.hyper, 1)
+    obs = np.random.default_rng(0).uniform(-2, 2, size=(64, 1))  # the rail observes x
+    family = ActorFamily(model, algo, scaling)
+    want = PolicyController(model, scaling).act(obs, obs, 0)
+    np.testing.assert_allclose(family.act(obs, obs, 0), want, atol=1e-5)
+    family.thetas = np.stack([family.theta0, family.theta0 + 0.5])  # two candidates, a block of rows each
+    both = family.act(np.concatenate([obs, obs]), None, 0)
+    np.testing.assert_allclose(both[:64], want, atol=1e-5)
+    assert np.abs(both[64:] - want).max() > 1e-3
+    family.install(model, family.theta0 + 0.5)  # what the run saves is what the candidate did
+    np.testing.assert_allclose(PolicyController(model, scaling).act(obs, obs, 0), both[64:], atol=1e-5)
+
+
 def test_tied_candidates_pull_no_way():
     from asap_dsl.backends.rl.policy_search import centred_ranks
 
