@@ -143,11 +143,10 @@ def main() -> int:
             f"the evaluation's ({EVAL_SEED}) nor the validation's ({VALIDATION_SEED})")
     else:
         positive = all(math.isfinite(x) and x > 0 for x in (args.sigma, args.lr))
-        bad = "" if (args.iterations >= 1 and args.validation >= 0 and args.population >= 2 and args.population % 2 == 0 and args.batch >= 1
-                     and args.every >= 1 and args.seed >= 0 and positive) else (
-            "--iterations, --batch and --every take positive whole numbers, --validation 0 or more, --population an even "
-            "one of at least 2, "
-            "--sigma and --lr positive finite numbers, --seed a whole number of at least 0")
+        whole = min(args.iterations, args.batch, args.every) >= 1 and args.validation >= 0 and args.seed >= 0
+        bad = "" if whole and args.population >= 2 and args.population % 2 == 0 and positive else (
+            "--iterations, --batch and --every take positive whole numbers, --validation 0 or more, --population an "
+            "even one of at least 2, --sigma and --lr positive finite numbers, --seed a whole number of at least 0")
     if bad:
         print(f"return_search: {bad}", file=sys.stderr)
         return 2

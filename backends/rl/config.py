@@ -36,11 +36,12 @@ class ConfigError(ValueError):
 
 
 # What each stored field must be (the annotations, as text), and how a message names it.
-_STORED_TYPES = {"Optional[dict[str, Any]]": (dict, type(None)), "str": (str,), "int": (int,), "bool": (bool,), "dict[str, Any]": (dict,), "float": (int, float),
-                 "Optional[float]": (int, float, type(None)), "Optional[dict[str, str]]": (dict, type(None))}
-_TYPE_WORDS = {"Optional[dict[str, Any]]": "an object or null", "str": "a text", "int": "a whole number", "bool": "true or false", "dict[str, Any]": "an object",
-               "float": "a number",
-               "Optional[float]": "a number or null", "Optional[dict[str, str]]": "an object or null"}
+_STORED_TYPES = {"str": (str,), "int": (int,), "bool": (bool,), "dict[str, Any]": (dict,), "float": (int, float),
+                 "Optional[float]": (int, float, type(None)), "Optional[dict[str, str]]": (dict, type(None)),
+                 "Optional[dict[str, Any]]": (dict, type(None))}
+_TYPE_WORDS = {"str": "a text", "int": "a whole number", "bool": "true or false", "dict[str, Any]": "an object",
+               "float": "a number", "Optional[float]": "a number or null",
+               "Optional[dict[str, str]]": "an object or null", "Optional[dict[str, Any]]": "an object or null"}
 
 # Fields added after sweeps were made, with the value that means "off": left out of a run's key
 # (:attr:`TrainConfig.key`) while off, so that a finished run is still found by a sweep.

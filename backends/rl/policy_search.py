@@ -76,8 +76,9 @@ class SearchSettings:
             raise ValueError("the policy search's sigma and learning_rate take positive finite numbers")
         if not (isinstance(self.time_share, (int, float)) and 0.0 < self.time_share < 1.0):
             raise ValueError("the policy search's time_share is a share between 0 and 1")
-        if self.seconds is not None and not (isinstance(self.seconds, (int, float)) and not isinstance(self.seconds, bool)
-                                             and 0.0 < self.seconds < math.inf):
+        seconds = self.seconds
+        if seconds is not None and not (isinstance(seconds, (int, float)) and not isinstance(seconds, bool)
+                                        and 0.0 < seconds < math.inf):
             raise ValueError("the policy search's seconds take a positive finite number or none")
         if self.objective not in OBJECTIVES:
             raise ValueError(f"the policy search's objective is one of {', '.join(OBJECTIVES)}; got {self.objective!r}")

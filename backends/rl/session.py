@@ -27,7 +27,7 @@ from .config import TrainConfig
 from .curriculum import failed_starts_env
 from .demonstrations import keep
 from .imitation import IMITATION_STATE_SECONDS, set_imitation
-from .policy_search import ActorFamily, PolicySearch, SearchSettings, SearchState
+from .policy_search import SEARCHABLE, ActorFamily, PolicySearch, SearchSettings, SearchState
 from .presets import OFF_POLICY, get_preset
 from .engines import Engine, get_engine
 from .exploration import LateDemonstrations, add_late
@@ -392,8 +392,6 @@ class Session:
     # -- the policy search, after the learner
     def _tell_no_search(self) -> None:
         """Say why a run has not the preset's policy search (not when it was turned off)."""
-        from .policy_search import SEARCHABLE
-
         if self.cfg.policy_search is not None or not get_preset(self.cfg.preset).policy_search:
             return
         if self.prog.system.kind == "simulator":
@@ -443,8 +441,8 @@ class Session:
                          "seconds": round(self.seconds, 3), "search_iteration": state.best_iteration}
             family.install(best, state.best_theta)
             self.run.save_model(lambda path: best.save(str(path)), best=self.best, policy_search=summary)
-            self._tell(f"policy search: kept iteration {state.best_iteration:,} of {state.iteration:,} "
-                       f"(validation score {summary['score_before']:.4f} -> {state.best_score:.4f}) in {state.seconds:.0f} s")
+            self._tell(f"policy search: kept iteration {state.best_iteration:,} of {state.iteration:,} (validation "
+                       f"score {summary['score_before']:.4f} -> {state.best_score:.4f}) in {state.seconds:.0f} s")
         else:
             self.run.update_manifest(policy_search=summary)
             self._tell(f"policy search: {state.iteration:,} iterations in {state.seconds:.0f} s, none beat the "

@@ -253,10 +253,10 @@ def _run(prog: Program, cfg: TrainConfig, run: RunDir, stop: Interrupts, *, resu
                                          or (session.learned and searching))
             if session.learned and not session.search_due(m):
                 return _finished(run, cfg, session, evaluate)
+            again = {}
             if not session.learned and session.search is not None:  # more steps: a new search after them
-                session.search = None
-                run.update_manifest(policy_search=None)
-            run.update_manifest(status="running", config=cfg.to_dict(), error=None)
+                session.search, again = None, {"policy_search": None}
+            run.update_manifest(status="running", config=cfg.to_dict(), error=None, **again)
     else:
         if check_target(run.path, force) or run.path.is_dir():  # refused before anything is built
             run.acquire(exclusive=True)  # the run it replaces (or the empty directory) is ours until then
