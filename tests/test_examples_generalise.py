@@ -1,7 +1,7 @@
 """The specs written to test whether the default training generalises (issue 18):
 examples/pendulum_swingup.asap (energy pumping), examples/puck_detour.asap and
-examples/rover_detour.asap (detours round an obstacle) and examples/planar_quadrotor.asap (an
-under-actuated craft). Each loads, lints clean, steps finitely, and the oracle's action sequences for two
+examples/rover_detour.asap (detours round an obstacle), examples/planar_quadrotor.asap (an
+under-actuated craft) and examples/cartpole_swingup.asap (energy pumping, under-actuated). Each loads, lints clean, steps finitely, and the oracle's action sequences for two
 states, replayed in the training environment from the same start, reach the goal at the step the
 oracle says without touching the obstacle."""
 
@@ -19,9 +19,10 @@ PENDULUM = ROOT / "examples" / "pendulum_swingup.asap"
 PUCK = ROOT / "examples" / "puck_detour.asap"
 ROVER = ROOT / "examples" / "rover_detour.asap"
 QUADROTOR = ROOT / "examples" / "planar_quadrotor.asap"
-SPECS = [PENDULUM, PUCK, ROVER, QUADROTOR]
+CARTPOLE = ROOT / "examples" / "cartpole_swingup.asap"
+SPECS = [PENDULUM, PUCK, ROVER, QUADROTOR, CARTPOLE]
 CASES = [(PENDULUM, "reach"), (PUCK, "reach"), (PUCK, "reach_avoid"), (ROVER, "reach_avoid"),
-         (QUADROTOR, "reach"), (QUADROTOR, "reach_avoid")]
+         (QUADROTOR, "reach"), (QUADROTOR, "reach_avoid"), (CARTPOLE, "reach")]
 
 
 @pytest.mark.parametrize("spec", SPECS, ids=lambda p: p.stem)
@@ -45,6 +46,20 @@ def test_the_torque_cannot_lift_the_pendulum_directly():
     prog = asap_dsl.load(PENDULUM)
     c = prog.system.consts
     assert prog.system.action_high[0] < c["m"] * c["g0"] * c["l"] / 3
+
+
+def test_the_cart_pole_swings_away_from_upright_first():
+    """The point of the spec: on the oracle's minimum-time path from a start of the box, the pole's
+    angle from upright grows again before it arrives (a pump): the full force accelerates the
+    cart at less than half of g, too little to throw the pole up in one push."""
+    prog = asap_dsl.load(CARTPOLE)
+    c = prog.system.consts
+    assert prog.system.action_high[0] / (c["mc"] + c["mp"]) < c["g0"] / 2
+    x0 = task_states(prog.system, prog.task("reach").model, 1, seed=2024)[0]
+    r = O.Oracle(prog, "reach", time_limit=30.0).solve(x0)
+    assert r.status == "solved" and r.steps > 20, r
+    from_upright = np.pi - np.abs(np.asarray(r.trajectory)[:, 1])  # theta = +-pi upright
+    assert (np.diff(from_upright) > 0.05).any(), from_upright
 
 
 def test_the_rover_must_go_over_the_crater():

@@ -674,3 +674,19 @@ def test_an_interrupted_search_resumes_where_it_stopped(tmp_path, monkeypatch):
     told.clear()
     O.solve_seeded(prog, "go", 2024, 40, workers=1, progress=told.append)
     assert told == [1] * 40
+
+
+def test_state_results_serialise_numpy_numbers():
+    """The solver hands numpy integers and booleans (a state's index from an index array, a step
+    count from an argmin): `asapc oracle --format json --states` must still write plain JSON."""
+    from asap_dsl.backends.oracle.planner import PlannedState
+
+    acts = np.zeros((3, 1))
+    solved = O.StateResult(np.int64(4), np.array([0.1, 0.2]), np.int64(3), "solved", np.bool_(True),
+                           np.int64(0), np.int64(2), np.int64(1), acts, None, 0.5, np.int64(1), None, np.int64(3))
+    planned = PlannedState(np.int64(2), np.array([0.0]), np.int64(7), "solved", np.bool_(True), actions=acts,
+                           rollouts=np.int64(128), iterations=np.int64(60))
+    for r in (solved, planned):
+        d = json.loads(json.dumps(r.to_dict(with_actions=True)))
+        assert d["index"] == int(r.index) and d["steps"] == int(r.steps) and d["verified"] is True
+        assert type(r).from_dict(d).to_dict(with_actions=True) == d  # what the cache reads back

@@ -49,7 +49,7 @@ import numpy as np
 from asap_dsl.rollout import Evaluator
 from asap_dsl.sampling import EVAL_SEED
 
-from .results import StateResult
+from .results import StateResult, optional_int
 from .search import STATE_TIME_LIMIT
 
 __all__ = ["BOUND", "LABEL", "METHODS", "PlannedState", "Planner", "PlannerBudget", "PlannerUnsupported",
@@ -127,9 +127,9 @@ class PlannedState(StateResult):
     iterations: int = 0
 
     def to_dict(self, with_actions: bool = False) -> dict:
-        d = {"index": self.index, "x0": [float(v) for v in self.x0], "steps": self.steps, "status": self.status,
-             "verified": self.verified, "rollouts": self.rollouts, "iterations": self.iterations,
-             "seconds": round(self.seconds, 6)}
+        d = {"index": int(self.index), "x0": [float(v) for v in self.x0], "steps": optional_int(self.steps),
+             "status": self.status, "verified": bool(self.verified), "rollouts": int(self.rollouts),
+             "iterations": int(self.iterations), "seconds": round(float(self.seconds), 6)}
         if self.source is not None:
             d["source"] = self.source
         if with_actions:

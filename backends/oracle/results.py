@@ -11,6 +11,11 @@ import numpy as np
 from asap_dsl.stats import steps_summary, wilson_interval
 
 
+def optional_int(v) -> Optional[int]:
+    """A plain int (JSON has no numpy integers), None kept."""
+    return None if v is None else int(v)
+
+
 @dataclass
 class StateResult:
     """The oracle's answer for one initial state."""
@@ -31,14 +36,15 @@ class StateResult:
     horizon: Optional[int] = None  # timeout: the last N searched (none feasible up to it)
 
     def to_dict(self, with_actions: bool = False) -> dict:
-        d = {"index": self.index, "x0": [float(v) for v in self.x0], "steps": self.steps,
-             "status": self.status, "verified": self.verified, "failures": self.failures,
-             "solves": self.solves, "restarts": self.restarts, "lower_bound": self.lower_bound,
-             "seconds": round(self.seconds, 6)}
+        # Plain ints and bools: the solver hands numpy's (a state's index from an index array).
+        d = {"index": int(self.index), "x0": [float(v) for v in self.x0], "steps": optional_int(self.steps),
+             "status": self.status, "verified": bool(self.verified), "failures": int(self.failures),
+             "solves": int(self.solves), "restarts": int(self.restarts), "lower_bound": int(self.lower_bound),
+             "seconds": round(float(self.seconds), 6)}
         if self.source is not None:
             d["source"] = self.source
         if self.horizon is not None:
-            d["horizon"] = self.horizon
+            d["horizon"] = int(self.horizon)
         if with_actions:
             d["actions"] = None if self.actions is None else self.actions.tolist()
         return d
