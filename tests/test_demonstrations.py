@@ -156,8 +156,10 @@ def test_demonstration_states_are_not_evaluation_or_validation_states(rail):
 def test_who_gets_demonstrations(rail):
     from asap_dsl.backends.rl.config import ConfigError, resolve_config
 
-    assert resolve_config(rail).demonstrations == 0  # the default's come when the run stalls (below)
-    assert resolve_config(rail).stall_demonstrations == 300
+    td3 = resolve_config(rail, algo="td3")
+    assert td3.demonstrations == 0 and td3.stall_demonstrations == 300  # the default's come when the run stalls (below)
+    sac = resolve_config(rail)  # ... and SAC's imitated paths at the start as well (tests/test_imitation.py)
+    assert (sac.demonstrations, sac.imitation, sac.stall_demonstrations) == (2500, 0.1, 300)
     assert resolve_config(rail, preset="paper").demonstrations == 0
     assert resolve_config(rail, demonstrations=12).demonstrations == 12
     assert resolve_config(rail, algo="td3", demonstrations=12, preset="paper").demonstrations == 12
@@ -240,10 +242,11 @@ def test_the_presets_demonstrations_wait_for_a_stall_unless_a_run_asks_for_its_o
     300), not at the start; ``--demonstrations N`` puts N at the start and no rule."""
     from asap_dsl.backends.rl.config import resolve_config
 
-    cfg = resolve_config(rail, steps=80_000)
+    cfg = resolve_config(rail, steps=80_000, algo="td3")  # SAC imitates the oracle's paths from the start too
     assert (cfg.demonstrations, cfg.stall_demonstrations) == (0, 100)
-    assert resolve_config(rail).stall_demonstrations == 300
-    assert (resolve_config(rail, demonstrations=4).demonstrations, resolve_config(rail, demonstrations=4).stall_demonstrations) == (4, 0)
+    assert resolve_config(rail, algo="td3").stall_demonstrations == 300
+    assert (resolve_config(rail, algo="td3", demonstrations=4).demonstrations,
+            resolve_config(rail, algo="td3", demonstrations=4).stall_demonstrations) == (4, 0)
     assert resolve_config(rail, demonstrations=0).stall_demonstrations == 0
     assert resolve_config(rail, preset="paper").stall_demonstrations == 0
     assert resolve_config(rail, algo="ppo").stall_demonstrations == 0
@@ -519,7 +522,8 @@ def test_a_run_on_sbx_that_finds_nothing_imitates_the_oracles_paths_from_then_on
 
     monkeypatch.setattr(validation, "BUDGET", 1e9)
     monkeypatch.setitem(presets.PRESETS, "default",
-                        replace(presets.DEFAULT, imitation_states=12, imitation_seconds=120.0, plateau=None))
+                        replace(presets.DEFAULT, imitation=0.0, policy_search=None, imitation_states=12,
+                                imitation_seconds=120.0, plateau=None))  # the late rule: no imitation from the start
     far = RAIL.replace("init [-1.5, 1.5]", "init [-1.5, -0.5]").replace(
         "tolerances 20, 10, 5", "tolerances 20, 10, 5\n  train { learning_starts = 10000 }")
     spec = tmp_path / "far.asap"

@@ -69,7 +69,9 @@ def test_imitation_is_asked_for_and_then_on_known_dynamics_with_sac_on_sbx_only(
     from asap_dsl.backends.rl.config import ConfigError
 
     prog = asap_dsl.loads(RAIL, "rail.asap")
-    assert resolve_config(prog, steps=2_000_000).imitation == 0.0  # the default does not
+    default = resolve_config(prog, steps=2_000_000)
+    assert default.imitation == DEFAULT.imitation == 0.1 and default.key["imitation"] == 0.1  # the default does
+    assert resolve_config(prog, steps=2_000_000, algo="td3").imitation == 0.0  # ... where it can, silently
     cfg = resolve_config(prog, steps=2_000_000, imitation=1.0)
     assert cfg.imitation == 1.0 and cfg.key["imitation"] == 1.0
     assert cfg.demonstrations == DEFAULT.imitation_states and cfg.stall_demonstrations == DEFAULT.demonstrations
@@ -86,19 +88,19 @@ def test_imitation_is_asked_for_and_then_on_known_dynamics_with_sac_on_sbx_only(
             resolve_config(prog, steps=2_000_000, imitation=1.0, **other)
     with pytest.raises(ConfigError, match="must be a number of 0 or more"):
         resolve_config(prog, imitation=-1.0)
-    assert "imitation" not in resolve_config(prog, steps=2_000_000).key  # runs from before it keep their key
+    assert "imitation" not in resolve_config(prog, steps=2_000_000, imitation=0).key  # runs without it keep their key
 
 
 def test_the_late_rule_imitates_where_a_run_could_and_leaves_the_key_alone():
     prog = asap_dsl.loads(RAIL, "rail.asap")
-    cfg = resolve_config(prog, steps=2_000_000)
+    cfg = resolve_config(prog, steps=2_000_000, imitation=0)  # not imitating from the start
     assert cfg.sparse_imitation == DEFAULT.sparse_imitation > 0 and cfg.imitation_states == DEFAULT.imitation_states
     assert cfg.imitation_seconds == DEFAULT.imitation_seconds
     assert "sparse_imitation" not in cfg.key and "imitation_states" not in cfg.key  # acts only once it fired
     assert cfg.sparse_gamma is None  # imitating the paths, the run keeps its discount
-    for other in (dict(algo="td3"), dict(engine="sb3"), dict(imitation=1.0), dict(demonstrations=0),
-                  dict(preset="paper")):
-        assert resolve_config(prog, steps=2_000_000, **other).sparse_imitation == 0.0, other
+    for other in (dict(algo="td3"), dict(engine="sb3"), dict(imitation=1.0), dict(imitation=None),
+                  dict(demonstrations=0), dict(preset="paper")):
+        assert resolve_config(prog, steps=2_000_000, **{"imitation": 0, **other}).sparse_imitation == 0.0, other
     assert resolve_config(prog, steps=2_000_000, algo="td3").sparse_gamma is not None  # the 8 sequences' rule
 
 

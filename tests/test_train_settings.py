@@ -99,7 +99,10 @@ def test_policy_kwargs_merge_with_the_presets_never_twice(tiny):
     from gymnasium import spaces
 
     kw = model_kwargs("sac", spaces.Box(-1, 1, (1,)), cfg.hyper, "sbx")
-    assert kw["target_entropy"] == -2.0 and kw["ent_coef"] == "auto_0.1" and kw["policy_kwargs"] == {"net_arch": [64, 64]}
+    assert kw["target_entropy"] == -2.0 and kw["ent_coef"] == "auto_0.1"
+    import flax.linen as nn
+
+    assert kw["policy_kwargs"] == {"net_arch": [64, 64], "activation_fn": nn.silu}  # the preset's, once each
 
 
 @pytest.mark.parametrize("settings, words", [

@@ -228,14 +228,14 @@ def resolve_config(prog, task: Optional[str] = None, *, algo: Optional[str] = No
         demos, stall = 0, demos
     # The actor imitates the oracle's paths (SAC on sbx, known dynamics), the run's demonstrations
     # or as many as the preset's budget buys, at the start; the stall rule stays.
-    weight = p.imitation if imitation is None else imitation
+    asked, weight = imitation is not None, p.imitation if imitation is None else imitation
     if isinstance(weight, bool) or not isinstance(weight, (int, float)) or not 0.0 <= weight < math.inf:
         raise ConfigError(f"the imitation's weight must be a number of 0 or more; got {weight!r}")
     imitation = 0.0
     if weight > 0:
         why = ("the oracle's paths need known dynamics (an ode or a map)" if searcher(prog) != "oracle"
                else "only SAC on the sbx engine imitates" if (algo, engine) != ("sac", "sbx") else None)
-        if why is not None and p.imitation <= 0:  # asked for, not the preset's: say why not
+        if why is not None and asked:  # asked for, not the preset's: say why not
             raise ConfigError(f"--imitation: {why}; this run trains {algo.upper()} on {engine}")
         if why is None and demonstrations != 0:
             if demonstrations is None:
