@@ -119,3 +119,13 @@ def test_a_run_with_imitation_keeps_it_across_a_resume_and_says_its_demonstratio
     assert code != 0 and "--imitation 0.0 (the run has 1.0)" in err, err
     code, _, err = asapc(capsys, "train", tiny, "--imitation", "-1")
     assert code == 2 and "expected a number of 0 or more" in err, err
+
+
+def test_where_the_actor_imitates_its_networks_are_silu_unless_the_run_chose():
+    """SiLU was measured with the imitation (alone it was mixed): the default's SAC takes it where
+    it imitates, and nowhere else; a run's own choice stands."""
+    prog = asap_dsl.loads(RAIL, "rail.asap")
+    assert resolve_config(prog).hyper["activation_fn"] == DEFAULT.imitation_activation == "silu"
+    for other in (dict(imitation=0), dict(algo="td3"), dict(engine="sb3"), dict(preset="paper")):
+        assert "activation_fn" not in resolve_config(prog, **other).hyper, other
+    assert resolve_config(prog, settings={"activation_fn": "elu"}).hyper["activation_fn"] == "elu"

@@ -241,6 +241,8 @@ def resolve_config(prog, task: Optional[str] = None, *, algo: Optional[str] = No
             if demonstrations is None:
                 demos, stall = min(int(p.imitation_states), total // max(1, int(p.demonstration_steps))), stall
             imitation = float(weight) if demos > 0 else 0.0
+    if imitation > 0 and p.imitation_activation is not None and "activation_fn" not in hyper:
+        hyper["activation_fn"] = p.imitation_activation  # measured with the imitation (the preset's why)
     restarts = p.failed_starts if failed_starts is None else failed_starts
     if isinstance(restarts, bool) or not isinstance(restarts, (int, float)) or not 0.0 <= restarts <= 1.0:
         raise ConfigError(f"failed starts must be a share between 0 and 1; got {restarts!r}")
