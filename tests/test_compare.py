@@ -198,7 +198,28 @@ def test_bad_compare_flags(tiny, capsys):
     assert code == 2 and "no task named 'nope'" in err
     code, err = run("compare", tiny, "--algos", "sac,a2c", "--engine", "sbx")  # checked before anything trains
     assert code == 2 and "the sbx engine has no a2c" in err
+    code, err = run("compare", tiny, "--algos", "sac,td3", "--imitation", "0.5")
+    assert code == 2 and "only SAC on the sbx engine imitates; this run trains TD3" in err
+    code, err = run("compare", tiny, "--algos", "sac,ppo", "--search-iterations", "5")
+    assert code == 2 and "this run trains PPO" in err
     assert "Traceback" not in err
+
+
+def test_a_sweep_passes_the_learner_phases_to_every_run(tiny):
+    """``--imitation`` and ``--search-iterations`` reach every run's configuration (0 turning the
+    default's phases off: the learner alone, as the paper compares it), and its run directory."""
+    from asap_dsl.backends.compare.sweep import job_config, job_dir, plan
+
+    prog = asap_dsl.load(tiny)
+    default = plan([tiny], None, ["asap", "rho"], ["sac", "td3", "ppo"], 1)
+    alone = plan([tiny], None, ["asap", "rho"], ["sac", "td3", "ppo"], 1, imitation=0, search_iterations=0)
+    assert len(default) == len(alone) == 4
+    for d, a in zip(default, alone):
+        cd, ca = job_config(d, prog), job_config(a, prog)
+        assert ca.imitation == 0.0 and ca.policy_search is None and "activation_fn" not in ca.hyper
+        assert (cd.imitation > 0) == (d.algo == "sac") and (cd.policy_search is not None) == (d.algo != "ppo")
+        assert (job_dir(Path("r"), d, prog, cd) == job_dir(Path("r"), a, prog, ca)) == (d.algo == "ppo")
+    assert alone[0].training() == "default (imitation 0, search iterations 0)" and default[0].training() == "default"
 
 
 def test_sweep_workers_each_hold_their_own_core(monkeypatch):

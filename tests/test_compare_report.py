@@ -224,14 +224,20 @@ def test_the_results_readme_is_built_from_the_reports_numbers_and_the_papers_cel
     shutil.copy(ROOT / "docs" / "results" / "paper.json", tmp_path / "paper.json")
     (tmp_path / "bicycle" / "made.json").write_text(json.dumps({"command": "bash scripts/results bicycle",
                                                                 "wall_seconds": 1800, "machine": "2 cores"}))
+    # the default preset's own report (ASAP-Phi, SAC): a column of its own, no paper cell
+    best = Method("asap/sac", "ASAP-Phi (sac)", "rl", {col.name: [_ev([4, 10, 15, 18, 20, 25, 12, 19, 13, 14])] * 3})
+    write(tmp_path / "bicycle" / "default", ReportData("t", [col], table1=[best], table2=[], runs=[]))
     text = readme(tmp_path)
     t1 = text.split("## Table 1")[1].split("## Table 2")[0]
     t2 = text.split("## Table 2")[1].split("## Where")[0]
     # bicycle R within 30: the paper's 92.8 / 80.6 / 78.4 beside ours (9 of 10 states) and the ceiling (10 of 10)
-    assert "| bicycle | R | 30 | 92.8 | 90.0 ± 0.0 | 80.6 | 90.0 ± 0.0 | 78.4 | 90.0 ± 0.0 | 100.0 ± 0.0 | 100.0 |" in t1
-    assert "| d reward paper | ours | ASAP-Phi + look-ahead, ours | ceiling |" in t1
+    assert ("| bicycle | R | 30 | 92.8 | 90.0 ± 0.0 | 80.6 | 90.0 ± 0.0 | 78.4 | 90.0 ± 0.0 | 100.0 ± 0.0 | 100.0 ± 0.0 "
+            "| 100.0 |") in t1
+    assert "| bicycle | R | 15 | 74.4 | 30.0 ± 0.0 | 72.6 | 30.0 ± 0.0 | 65.4 | 30.0 ± 0.0 | 50.0 ± 0.0 | 60.0 ± 0.0 |" in t1
+    assert "| d reward paper | ours | ASAP-Phi + look-ahead, ours | ASAP-Phi, default preset | ceiling |" in t1
+    assert "| bicycle, the default preset | [report](bicycle/default/report.md) |" in text
     assert "| bicycle | R | 20 | 83.0 | 50.0 ± 0.0 | 76.8 | 50.0 |" in t2  # SAC, then TD3 (one seed)
-    assert "| dc_motor | R | 30 | 97.4 | — |" in t1 and "| 35.5 | — | — | — |" in t1  # no report yet
+    assert "| dc_motor | R | 30 | 97.4 | — |" in t1 and "| 35.5 | — | — | — | — |" in t1  # no report yet
     assert "Table 1, bicycle R within 30, ASAP-Phi: ours 90.0 ± 0.0 against 92.8" in text
     assert "Table 1, bicycle R within 30, ρ reward" not in text  # ours, 90.0, is above the paper's 80.6
     assert "| bicycle | [report](bicycle/report.md) | `bash scripts/results bicycle` | — | — | 30 min | 2 cores |" in text
@@ -250,8 +256,9 @@ def test_the_results_readme_is_built_from_the_reports_numbers_and_the_papers_cel
     # the ceiling the report stands beside, 10 of 10 states within 30, with its Wilson interval
     assert "| bicycle | R | oracle (local) | 10 | 30 / 25 / 15 | 100.0 [72.2, 100.0] / " in new
     assert "| dc_motor | R | not yet made | — | — | — |" in new
-    assert "| bicycle | R | 30 / 25 / 15 | 90.0 / " in new and "| 100.0 / 90.0 / 50.0 | 100.0 / 90.0 / 50.0 |" in new
-    assert "| dc_motor | R | 30 / 25 / 15 | not yet made | — | — | 97.4 / 95.2 / 89.0 |" in new
+    assert "| bicycle | R | 30 / 25 / 15 | 100.0 / 100.0 / 60.0 | 90.0 / " in new  # the default's, then the learner's
+    assert "| 100.0 / 90.0 / 50.0 | 100.0 / 90.0 / 50.0 |" in new
+    assert "| dc_motor | R | 30 / 25 / 15 | — | not yet made | — | — | 97.4 / 95.2 / 89.0 |" in new
     (tmp_path / "README.md").write_text("no markers\n")
     assert main([str(tmp_path), "--readme", str(tmp_path / "README.md")]) == 1
 

@@ -220,6 +220,20 @@ def add_workers(p: argparse.ArgumentParser, what: str) -> None:
     p.add_argument("--force-workers", action="store_true", help="allow more workers than cores")
 
 
+def add_learner_phases(p: argparse.ArgumentParser) -> None:
+    """``--imitation W`` and ``--search-iterations N``: the default preset's phases beside and after
+    the learner, for a run (``asapc train``) or every run of a sweep (``asapc compare``)."""
+    p.add_argument("--imitation", type=weight_float, metavar="W",
+                   help="SAC's actor also imitates the oracle's minimum-time paths with this weight (sbx engine, "
+                        "known dynamics): those of the preset's 2,500 initial states (or of --demonstrations N) that "
+                        "1,440 CPU seconds of the oracle solve (12 minutes on 2 cores), all in the replay buffer from "
+                        "the start (default: the preset's, 0.1 where it can; 0: none)")
+    p.add_argument("--search-iterations", type=natural_int, metavar="N",
+                   help="after the learner, evolution strategies on the best actor for N iterations, the model kept "
+                        "only if it beats the learner's on validation (SAC, TD3, DDPG on sbx; default: the preset's, "
+                        "1,000 on known dynamics; 0: none)")
+
+
 def workers(args: argparse.Namespace) -> int:
     """The processes asked for, one per core by default. More than the cores only slow every one
     of them down: refused unless ``--force-workers``."""

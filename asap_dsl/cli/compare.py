@@ -12,8 +12,8 @@ import sys
 import time
 from typing import Optional, TextIO
 
-from .args import (InputError, UsageError, add_episodes, add_workers, names_list, natural_int, path_arg,
-                   positive_amount, positive_int, steps_int, tolerances_list, workers)
+from .args import (InputError, UsageError, add_episodes, add_learner_phases, add_workers, names_list, natural_int,
+                   path_arg, positive_amount, positive_int, steps_int, tolerances_list, workers)
 
 __all__ = ["SweepProgress", "compare_command", "fill_compare_subparser", "ray_address"]
 
@@ -59,6 +59,7 @@ def fill_compare_subparser(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--lookahead", type=natural_int, default=0, metavar="N",
                    help="Table 1 also shows the first reward's policies refined on the spec's simulator by a "
                         "look-ahead holding actions up to N steps (as `asapc eval --lookahead N`)")
+    add_learner_phases(p)
     p.add_argument("--quiet", action="store_true", help="no progress display")
     p.set_defaults(func=compare_command)
     return p
@@ -160,7 +161,8 @@ def compare_command(args: argparse.Namespace, out: Optional[TextIO] = None, err:
         raise UsageError(f"unknown preset '{args.preset}'; choose {' or '.join(PRESETS)}")
     n_workers = workers(args)
     try:
-        jobs = plan(args.files, args.tasks, args.rewards, args.algos, args.seeds, args.preset, args.steps, args.engine)
+        jobs = plan(args.files, args.tasks, args.rewards, args.algos, args.seeds, args.preset, args.steps, args.engine,
+                    imitation=args.imitation, search_iterations=args.search_iterations)
         progs = {spec: asap_dsl.load(spec) for spec in {j.spec for j in jobs}}
         for j in jobs:  # every reward and setting checked before anything trains
             job_config(j, progs[j.spec])
@@ -178,7 +180,8 @@ def compare_command(args: argparse.Namespace, out: Optional[TextIO] = None, err:
                           episodes=args.episodes, on_event=progress, oracle_workers=available_cores(),
                           ray_timeout=args.ray_timeout, engine=args.engine, table2_tolerances=args.table2_tolerances,
                           on_oracle=progress.oracle if progress else None, summaries=args.summaries,
-                          lookahead=args.lookahead)
+                          lookahead=args.lookahead, imitation=args.imitation,
+                          search_iterations=args.search_iterations)
         finally:  # the bar stops before anything else is printed
             if progress:
                 progress.close()

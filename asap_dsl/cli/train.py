@@ -16,8 +16,8 @@ from typing import Optional, TextIO
 
 from ..formatting import percent
 from ..runfiles import command_line, shown
-from .args import (InputError, UsageError, add_seed, add_task, check_task, natural_int, path_arg, positive_amount,
-                   positive_int, share_float, steps_int, weight_float)
+from .args import (InputError, UsageError, add_learner_phases, add_seed, add_task, check_task, natural_int, path_arg,
+                   positive_amount, positive_int, share_float, steps_int)
 
 __all__ = ["ConsoleProgress", "fill_train_subparser", "train_command", "validation_text"]
 
@@ -45,15 +45,7 @@ def fill_train_subparser(subparsers) -> argparse.ArgumentParser:
                    help="initial states whose oracle (or, on a black box, planner) action sequences go into the "
                         "replay buffer before learning (SAC, TD3, DDPG; default: the preset's, once validation "
                         "stalls or finds nothing; 0: none)")
-    p.add_argument("--imitation", type=weight_float, metavar="W",
-                   help="SAC's actor also imitates the oracle's minimum-time paths with this weight (sbx engine, "
-                        "known dynamics): the --demonstrations states' paths, or the preset's 2,500 states' within "
-                        "1,440 CPU seconds of the oracle (12 minutes on 2 cores), all in the replay buffer from the "
-                        "start (default: 0, none; 1 was measured)")
-    p.add_argument("--search-iterations", type=natural_int, metavar="N",
-                   help="after the learner, evolution strategies on the best actor for N iterations, the model kept "
-                        "only if it beats the learner's on validation (SAC, TD3, DDPG on sbx; default: the preset's; "
-                        "0: none)")
+    add_learner_phases(p)
     p.add_argument("--failed-starts", type=share_float, metavar="P",
                    help="the share of new training episodes that start where an earlier one did not reach "
                         "(default: the preset's, 0.5; 0: none)")

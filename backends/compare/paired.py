@@ -205,7 +205,8 @@ def compare(specs: Sequence[str], *, tasks: Optional[Sequence[str]] = None,
             oracle_workers: Optional[int] = None, ray_timeout: float = 30.0,
             engine: Optional[str] = None, table2_tolerances: Sequence[int] = (),
             on_oracle: Optional[Callable[[str, int, int], None]] = None,
-            summaries: Optional[str] = None, lookahead: int = 0) -> CompareResult:
+            summaries: Optional[str] = None, lookahead: int = 0, imitation: Optional[float] = None,
+            search_iterations: Optional[int] = None) -> CompareResult:
     """Train what is missing, evaluate everything on the same states, write the report.
     ``engine`` (sbx or sb3) trains every run; None: the preset's engine where it has the algorithm.
     ``table2_tolerances``: Table 2 within these steps too, beside every tolerance of the spec (the
@@ -218,7 +219,8 @@ def compare(specs: Sequence[str], *, tasks: Optional[Sequence[str]] = None,
     actions for the run the report draws its examples from: a sweep that outlives its machine.
     ``lookahead``: Table 1 also shows the first reward's and algorithm's policies refined by a
     look-ahead holding actions up to this many steps (:class:`.controllers.LookaheadController`;
-    0: not).
+    0: not). ``imitation`` and ``search_iterations``: every run's, as ``asapc train``'s flags (None:
+    the preset's).
 
     Holds ``out``'s exclusive lock throughout (a second compare on it is refused, naming the
     first). Runs that cannot be used (failed, damaged) are left out of the tables, named in the
@@ -229,7 +231,8 @@ def compare(specs: Sequence[str], *, tasks: Optional[Sequence[str]] = None,
     """
     start = time.perf_counter()
     if table2_tolerances or lookahead:
-        jobs = plan(specs, tasks, list(rewards), list(algos), 1, preset, steps, engine)
+        jobs = plan(specs, tasks, list(rewards), list(algos), 1, preset, steps, engine, imitation=imitation,
+                    search_iterations=search_iterations)
         check_tolerances(jobs, table2_tolerances)
         check_lookahead(jobs, lookahead)
     out_dir = Path(out).expanduser().resolve()
@@ -246,7 +249,7 @@ def compare(specs: Sequence[str], *, tasks: Optional[Sequence[str]] = None,
             return _compare(specs, tasks, rewards, algos, seeds, steps, preset, workers, ray, out_dir, episodes,
                             on_event, oracle_workers, ray_timeout, start, phase, results, engine,
                             sorted({int(T) for T in table2_tolerances}, reverse=True), on_oracle, summaries,
-                            int(lookahead))
+                            int(lookahead), imitation, search_iterations)
         except KeyboardInterrupt:
             raise SweepInterrupted(results, phase[0]) from None
         except SweepInterrupted as err:
@@ -352,10 +355,12 @@ def column_labels(specs: Sequence[str]) -> dict[str, str]:
 def _compare(specs, tasks, rewards, algos, seeds, steps, preset, workers, ray, out_dir: Path, episodes, on_event,
              oracle_workers, ray_timeout, start, phase: list, results: list, engine=None,
              table2_tolerances: Sequence[int] = (), on_oracle=None, summaries: Optional[str] = None,
-             lookahead: int = 0) -> CompareResult:
+             lookahead: int = 0, imitation: Optional[float] = None,
+             search_iterations: Optional[int] = None) -> CompareResult:
     import asap_dsl
 
-    jobs = plan(specs, tasks, list(rewards), list(algos), seeds, preset, steps, engine)
+    jobs = plan(specs, tasks, list(rewards), list(algos), seeds, preset, steps, engine, imitation=imitation,
+                search_iterations=search_iterations)
     labels = column_labels(sorted({j.spec for j in jobs}))
     phase[0] = "training"
     kept_errors: list[str] = []
@@ -468,7 +473,7 @@ def _compare(specs, tasks, rewards, algos, seeds, steps, preset, workers, ray, o
     t1 = list(table1.values()) + ([refined] if refined.evaluations else []) + [greedy]
     t2 = list(table2.values()) if len(algos) > 1 else []
     runs = [{"label": f"{labels[r['job']['spec']]} {r['job']['task']} {r['job']['algo']} {r['job']['reward']}",
-             "spec_hash": r["manifest"]["spec_hash"], "seed": r["job"]["seed"], "preset": r["job"]["preset"],
+             "spec_hash": r["manifest"]["spec_hash"], "seed": r["job"]["seed"], "preset": Job(**r["job"]).training(),
              "steps": r["steps"], "seconds": r["seconds"], "status": _status(r)}
             for r in loaded]
     phase[0] = "the report"

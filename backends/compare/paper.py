@@ -3,8 +3,11 @@
 Built from data only: the paper's cells as transcribed once (``docs/results/paper.json``, from
 its LaTeX source) and each benchmark's ``report.json`` written by ``asapc compare``
 (:func:`.report.summary`), with the command that made it, its wall time and the machine
-(``made.json``, written by ``scripts/results``). A benchmark whose report is missing is listed as
-such, with the command that makes it; nothing is filled in by hand.
+(``made.json``, written by ``scripts/results``). A benchmark whose report is missing is listed
+as such, with the command that makes it; nothing is filled in by hand. The tables' runs are the
+learner alone (the paper's comparison of rewards and algorithms); ``<benchmark>/default/``, where
+made, adds ASAP-Phi with SAC under the whole default preset (the oracle's paths imitated, the
+policy search after the learner) as a column of its own (:data:`DEFAULT`).
 
     python -m backends.compare.paper docs/results      # rewrites docs/results/README.md
     python -m backends.compare.paper docs/results --readme README.md   # and the README's headline table
@@ -39,6 +42,8 @@ TABLE2_ALGOS = ("sac", "td3", "ddpg", "ppo", "a2c")
 #: Table 1's extra column, no paper cell: ASAP-Phi's SAC policies refined by the look-ahead
 #: (``asapc compare --lookahead N``), what the policy plus the spec's simulator do at run time.
 REFINED = "asap/sac+lookahead"
+#: The sub-directory of a benchmark's results holding the default preset's report (ASAP-Phi, SAC).
+DEFAULT = "default"
 
 
 def _load(path: Path) -> Optional[dict]:
@@ -88,6 +93,7 @@ def readme(results: Path) -> str:
         raise ValueError(f"{results / 'paper.json'} is missing or not JSON")
     reports = {b: _load(results / b / "report.json") for b in BENCHMARKS}
     made = {b: _load(results / b / "made.json") for b in BENCHMARKS}
+    defaults = {b: _load(results / b / DEFAULT / "report.json") for b in BENCHMARKS}
     cells = paper["cells"]
     below: list[str] = []
     out = ["# Results: the paper's Tables 1 and 2 beside ours and the physical limit", "",
@@ -112,12 +118,21 @@ def readme(results: Path) -> str:
         out.append(f"| {b} | {'[report](' + b + '/report.md)' if have else 'not yet made'} | "
                    f"`{m.get('command') or 'bash scripts/results ' + b}` | {len(runs) or '—'} | {trained} | {wall} | "
                    f"{m.get('machine') or '—'} |")
+        if defaults[b] is not None:
+            m = _load(results / b / DEFAULT / "made.json") or {}
+            runs = defaults[b].get("runs") or []
+            wall = f"{m['wall_seconds'] / 60:.0f} min" if m.get("wall_seconds") is not None else "—"
+            out.append(f"| {b}, the default preset | [report]({b}/{DEFAULT}/report.md) | `{m.get('command') or '—'}` | "
+                       f"{len(runs)} | {sum(r['seconds'] for r in runs) / 3600:.1f} h | {wall} | "
+                       f"{m.get('machine') or '—'} |")
     out.append("")
 
-    def table(number: int, methods: list[tuple[str, str, str]], order, extra: Optional[str] = None) -> None:
+    def table(number: int, methods: list[tuple[str, str, str]], order, extra: Optional[str] = None,
+              default: bool = False) -> None:
         """One row per (benchmark, task, tolerance) of the paper's table ``number``: for each of
         ``methods`` (label, our method's key, the paper cell's field and value to match) the
-        paper's cell and ours, then ours of the method ``extra`` (no paper cell), then the ceiling."""
+        paper's cell and ours, then ours of the method ``extra`` (no paper cell), then with
+        ``default`` the default preset's ASAP-Phi SAC (no paper cell), then the ceiling."""
         keys = sorted({(c["benchmark"], c["task"], c["within"]) for c in cells if c["table"] == number}, key=order)
         for b, task, T in keys:
             rep = reports[b]
@@ -137,14 +152,16 @@ def readme(results: Path) -> str:
                                  f"against {p:.1f}{why}")
             if extra is not None:
                 row.append(_cell(None if col is None else _ours(rep, f"table{number}", extra, col["name"], T)))
+            if default:
+                row.append(_cell(_default(defaults[b], b, task, T)))
             row.append(_ceiling(col, T))
             out.append("| " + " | ".join(row) + " |")
         out.append("")
 
-    def header(labels: list[str], extra: str = "") -> list[str]:
+    def header(labels: list[str], *extras: str) -> list[str]:
         return ["| benchmark | task | within | " + " | ".join(f"{x} paper | ours" for x in labels)
-                + (f" | {extra}" if extra else "") + " | ceiling |",
-                "|---|---|---|" + "---|---|" * len(labels) + ("---|" if extra else "") + "---|"]
+                + "".join(f" | {x}" for x in extras) + " | ceiling |",
+                "|---|---|---|" + "---|---|" * len(labels) + "---|" * len(extras) + "---|"]
 
     out += ["## Table 1 — rewards (SAC)", "",
             "The column before the ceiling is ours alone (the paper has no such row): the same ASAP-Phi "
@@ -152,10 +169,14 @@ def readme(results: Path) -> str:
             "as `asapc eval RUN --lookahead 8`: held candidate actions followed by the policy, the one "
             "reaching soonest applied; never later than the policy from any state) — what the policy and "
             "the simulator do at run time, not what training achieved; — where a report was made without "
-            "`--lookahead`.", ""]
-    out += header([name for _, name in TABLE1_METHODS], "ASAP-Phi + look-ahead, ours")
+            "`--lookahead`. The columns compare the rewards as the paper does, each learnt by SAC alone "
+            "(`--imitation 0 --search-iterations 0`: an actor imitating the oracle's paths would learn "
+            "them whatever its reward). The last but one is the default preset's ASAP-Phi with SAC, what "
+            "`asapc train` gives: the oracle's minimum-time paths imitated by the actor and the policy "
+            "search after the learner (its own report, `<benchmark>/default/`).", ""]
+    out += header([name for _, name in TABLE1_METHODS], "ASAP-Phi + look-ahead, ours", "ASAP-Phi, default preset")
     table(1, [(name, f"{key}/sac", ("method", key)) for key, name in TABLE1_METHODS],
-          lambda k: (BENCHMARKS.index(k[0]), k[1], -k[2]), extra=REFINED)
+          lambda k: (BENCHMARKS.index(k[0]), k[1], -k[2]), extra=REFINED, default=True)
     out += ["## Table 2 — algorithms (ASAP-Phi), at the paper's Table 2 tolerance", ""]
     out += header([a.upper() for a in TABLE2_ALGOS])
     table(2, [(a.upper(), f"asap/{a}", ("algo", a)) for a in TABLE2_ALGOS], lambda k: (BENCHMARKS.index(k[0]), k[1]))
@@ -169,17 +190,25 @@ def readme(results: Path) -> str:
     return "\n".join(out) + "\n"
 
 
+def _default(report: Optional[dict], benchmark: str, task: str, within: int) -> Optional[dict]:
+    """The default preset's ASAP-Phi SAC cell of ``report`` (``<benchmark>/default/report.json``)."""
+    col = None if report is None else _column(report, benchmark, task)
+    return None if col is None else _ours(report, "table1", "asap/sac", col["name"], within)
+
+
 def headline(results: Path) -> str:
-    """The README's headline table: per benchmark and task, ASAP-Phi with SAC (ours, the mean over
-    seeds), the same policies refined by the look-ahead where the report has them, the ceiling and
+    """The README's headline table: per benchmark and task, ASAP-Phi with SAC under the default
+    preset (ours, the mean over seeds; where its report is made), the learner alone (the tables'
+    runs) and its policies refined by the look-ahead where the report has them, the ceiling and
     the paper, at the paper's Table 1 tolerances; a benchmark without its report says so."""
     paper = _load(results / "paper.json")
     if paper is None:
         raise ValueError(f"{results / 'paper.json'} is missing or not JSON")
-    out = ["| benchmark | task | within | ASAP-Phi (SAC), ours | the same + look-ahead | ceiling | paper |",
-           "|---|---|---|---|---|---|---|"]
+    out = ["| benchmark | task | within | ASAP-Phi (SAC), the default preset | the learner alone | "
+           "the same + look-ahead | ceiling | paper |", "|---|---|---|---|---|---|---|---|"]
     for b in BENCHMARKS:
         rep = _load(results / b / "report.json")
+        default = _load(results / b / DEFAULT / "report.json")
         for task, short in TASKS.items():
             tol = sorted({c["within"] for c in paper["cells"] if c["table"] == 1 and c["benchmark"] == b
                           and c["task"] == task}, reverse=True)
@@ -195,7 +224,9 @@ def headline(results: Path) -> str:
                                             for T in tol) for key in ("asap/sac", REFINED))
                 refined = "—" if set(refined.split(" / ")) == {"—"} else refined
                 ceiling = " / ".join(_ceiling(col, T) for T in tol)
-            out.append(f"| {b} | {short} | {' / '.join(map(str, tol))} | {ours} | {refined} | {ceiling} | "
+            mine = [(_default(default, b, task, T) or {}).get("mean") for T in tol]
+            mine_text = "—" if all(v is None for v in mine) else " / ".join(_pct(v) for v in mine)
+            out.append(f"| {b} | {short} | {' / '.join(map(str, tol))} | {mine_text} | {ours} | {refined} | {ceiling} | "
                        f"{' / '.join(f'{p:.1f}' for p in ours_p)} |")
     return "\n".join(out) + "\n"
 

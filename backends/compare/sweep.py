@@ -45,16 +45,27 @@ class Job:
     preset: str = "default"
     steps: Optional[int] = None
     engine: Optional[str] = None  # None: the preset's
+    imitation: Optional[float] = None  # the actor's imitation of the oracle's paths (None: the preset's)
+    search_iterations: Optional[int] = None  # the policy search after the learner (None: the preset's)
 
     def label(self) -> str:
         return f"{Path(self.spec).stem} {self.task} {self.algo} {self.reward} s{self.seed}"
 
+    def training(self) -> str:
+        """The preset, and what the sweep set apart from it (the report's runs table)."""
+        set_ = [f"{name} {value:g}" for name, value in (("imitation", self.imitation),
+                                                        ("search iterations", self.search_iterations))
+                if value is not None]
+        return self.preset + (f" ({', '.join(set_)})" if set_ else "")
+
 
 def plan(specs: Sequence[str], tasks: Optional[Sequence[str]], rewards: Sequence[str], algos: Sequence[str],
-         seeds: int, preset: str = "default", steps: Optional[int] = None, engine: Optional[str] = None) -> list[Job]:
+         seeds: int, preset: str = "default", steps: Optional[int] = None, engine: Optional[str] = None, *,
+         imitation: Optional[float] = None, search_iterations: Optional[int] = None) -> list[Job]:
     """The runs the paper's tables need: every reward with the first algorithm (Table 1), and every
     algorithm with the first reward (Table 2), for every task of every spec and every seed. A spec
-    named twice (``a.asap ./a.asap``) is planned once."""
+    named twice (``a.asap ./a.asap``) is planned once. ``imitation`` and ``search_iterations`` go to
+    every run as ``asapc train``'s flags of those names (None: the preset's)."""
     import asap_dsl
 
     jobs: list[Job] = []
@@ -67,7 +78,7 @@ def plan(specs: Sequence[str], tasks: Optional[Sequence[str]], rewards: Sequence
             pairs = [(r, algos[0]) for r in rewards] + [(rewards[0], a) for a in algos[1:]]
             for reward, algo in pairs:
                 for seed in range(seeds):
-                    job = Job(spec, t, algo, reward, seed, preset, steps, engine)
+                    job = Job(spec, t, algo, reward, seed, preset, steps, engine, imitation, search_iterations)
                     if job not in jobs:
                         jobs.append(job)
     return jobs
@@ -79,7 +90,8 @@ def job_config(job: Job, prog):
     from ..rl.config import resolve_config
 
     return resolve_config(prog, job.task, algo=job.algo, reward=job.reward, steps=job.steps, seed=job.seed,
-                          preset=job.preset, engine=job.engine)
+                          preset=job.preset, engine=job.engine, imitation=job.imitation,
+                          search_iterations=job.search_iterations)
 
 
 def job_dir(runs_dir: Path, job: Job, prog, cfg) -> Path:
@@ -155,7 +167,7 @@ def run_job(job: Job, runs_dir: str, threads: int = 1) -> dict:
         trained, note, resumed = False, None, state == "resumable"
         if state not in ("finished", "summary"):
             kw = dict(algo=job.algo, reward=job.reward, steps=job.steps, seed=job.seed, preset=job.preset,
-                      engine=job.engine, out=path)
+                      engine=job.engine, imitation=job.imitation, search_iterations=job.search_iterations, out=path)
             try:
                 res = train(prog, job.task, resume=state == "resumable", force=state == "broken", **kw)
             except RunBusy:
