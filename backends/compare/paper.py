@@ -205,7 +205,7 @@ def headline(results: Path) -> str:
     if paper is None:
         raise ValueError(f"{results / 'paper.json'} is missing or not JSON")
     out = ["| benchmark | task | within | ASAP-Phi (SAC), the default preset | the learner alone | "
-           "the same + look-ahead | ceiling | paper |", "|---|---|---|---|---|---|---|---|"]
+           "the learner alone + look-ahead | ceiling | paper |", "|---|---|---|---|---|---|---|---|"]
     for b in BENCHMARKS:
         rep = _load(results / b / "report.json")
         default = _load(results / b / DEFAULT / "report.json")
