@@ -109,22 +109,20 @@ def readme(results: Path) -> str:
             "The wall time is the last call's (a sweep resumed across machines counts only its last part); "
             "the training time is every run's, summed (the runs ran side by side on the workers).", "",
             "| benchmark | report | command | runs | training | wall time | machine |", "|---|---|---|---|---|---|---|"]
-    for b in BENCHMARKS:
-        m = made[b] or {}
-        have = reports[b] is not None
+    def made_row(b: str, name: str, where: str, report: Optional[dict], m: dict) -> str:
+        """A report's row: its link (``where``), the command, its runs, their training, the wall time."""
         wall = f"{m['wall_seconds'] / 60:.0f} min" if m.get("wall_seconds") is not None else "—"
-        runs = (reports[b] or {}).get("runs") or []
+        runs = (report or {}).get("runs") or []
         trained = f"{sum(r['seconds'] for r in runs) / 3600:.1f} h" if runs else "—"
-        out.append(f"| {b} | {'[report](' + b + '/report.md)' if have else 'not yet made'} | "
-                   f"`{m.get('command') or 'bash scripts/results ' + b}` | {len(runs) or '—'} | {trained} | {wall} | "
-                   f"{m.get('machine') or '—'} |")
+        link = f"[report]({where}/report.md)" if report is not None else "not yet made"
+        return (f"| {name} | {link} | `{m.get('command') or 'bash scripts/results ' + b}` | {len(runs) or '—'} | "
+                f"{trained} | {wall} | {m.get('machine') or '—'} |")
+
+    for b in BENCHMARKS:
+        out.append(made_row(b, b, b, reports[b], made[b] or {}))
         if defaults[b] is not None:
-            m = _load(results / b / DEFAULT / "made.json") or {}
-            runs = defaults[b].get("runs") or []
-            wall = f"{m['wall_seconds'] / 60:.0f} min" if m.get("wall_seconds") is not None else "—"
-            out.append(f"| {b}, the default preset | [report]({b}/{DEFAULT}/report.md) | `{m.get('command') or '—'}` | "
-                       f"{len(runs)} | {sum(r['seconds'] for r in runs) / 3600:.1f} h | {wall} | "
-                       f"{m.get('machine') or '—'} |")
+            out.append(made_row(b, f"{b}, the default preset", f"{b}/{DEFAULT}", defaults[b],
+                                _load(results / b / DEFAULT / "made.json") or {}))
     out.append("")
 
     def table(number: int, methods: list[tuple[str, str, str]], order, extra: Optional[str] = None,

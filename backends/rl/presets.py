@@ -247,7 +247,7 @@ DEFAULT = Preset(
     # The actor imitates the oracle's minimum-time paths from the start (SAC on sbx, known dynamics;
     # weight 0.1 beside SAC's own loss), with the SiLU actor and critics and the policy search below:
     # measured as one package (docs/training.md, "The default's package"), fresh runs alone on the
-    # 2 cores, within 30 / 25 / 15 steps of the ceiling: attitude 1.0-1.8 points under (was 3.3 /
+    # 2 cores, within 30 / 25 / 15 steps of the ceiling: attitude 0.8-2.0 points under (was 3.3 /
     # 4.0 / 5.0 with the default before it), the bicycle 0.8-2.3 (was 5-8), the quadrotor of
     # examples/ 0 / 2.1 / 4.3 within 30 / 23 / 19 (was 0 / 4.3 / 10.0); not yet the rover's 25 steps
     # (9.2 under, was 11.7) nor the cart-pole's tighter two (20 under). Its budget: 2,500 states
