@@ -167,3 +167,16 @@ def pool_size(workers: int) -> int:
     import multiprocessing as mp
 
     return 1 if mp.current_process().daemon else workers
+
+
+def wall_timeout(until: Optional[float], cap_seconds: float, state_seconds: float) -> Optional[float]:
+    """How long a pool's owner may still wait for a worker's result under a wall-clock cap that
+    ends at ``until`` (``time.time()``; None: no cap, wait for ever): a state begun before the cap
+    may finish after it, for at most one state's ``state_seconds`` and a tenth of the cap's
+    ``cap_seconds`` (at least a second). Past that the owner gives up what is still running
+    (leaving the pool terminates it): workers spawned on a loaded machine take tens of seconds to
+    start, and a run's time limit must hold all the same."""
+    if until is None:
+        return None
+    grace = min(float(state_seconds), max(1.0, 0.1 * float(cap_seconds)))
+    return max(0.0, until + grace - time.time())

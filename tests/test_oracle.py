@@ -393,6 +393,19 @@ def test_a_search_under_a_budget_stops_taking_states_and_keeps_what_it_solved(wo
     assert list(unspent.steps) == list(full.steps)
 
 
+def test_a_wall_clock_cap_holds_while_the_workers_are_still_starting(tmp_path, monkeypatch):
+    """A training run's time limit caps its demonstrations' search: spawned workers that take
+    seconds to start (tens on a loaded machine, seen in CI) are given up at the cap and its grace,
+    not waited for. Here every spawned worker sleeps 6 s before it starts (a ``sitecustomize`` on
+    the path they inherit)."""
+    pytest.importorskip("jax")  # a learner's library loaded: the pool is spawned, as in a training run
+    (tmp_path / "sitecustomize.py").write_text("import time\ntime.sleep(6)\n")
+    monkeypatch.setenv("PYTHONPATH", str(tmp_path))
+    prog = asap_dsl.load(SPECS / "dc_motor.asap")
+    report = O.run(prog, "reach", episodes=200, workers=2, wall_seconds=0.5)
+    assert report.results == [] and report.seconds < 0.5 + 1.0 + 3.0  # the cap, its grace, the pool's ending
+
+
 def _found(report) -> list:
     return [(r.index, r.status, r.steps, None if r.actions is None else r.actions.round(9).tolist())
             for r in report.results]

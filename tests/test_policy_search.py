@@ -208,7 +208,7 @@ def test_a_search_stopped_midway_resumes_where_it_stopped(tiny, tmp_path, monkey
 def test_a_time_limited_run_leaves_the_search_its_share(tiny, tmp_path):
     out = tmp_path / "run"
     res = asap_dsl.train(tiny, steps=5_000_000, n_envs=2, out=out, settings=FAST, evaluate=False, time_limit=12,
-                         search_iterations=1_000_000)
+                         search_iterations=1_000_000, demonstrations=0)  # the learner's and the search's shares alone
     record = RunDir(out).read_manifest()["policy_search"]
     assert res.status == "finished" and 1 <= record["iterations"] < 1_000_000
     assert res.steps < 5_000_000 and max(r["seconds"] for r in res.curves) < 0.75 * 12 + 3  # the learner's share

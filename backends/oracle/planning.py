@@ -37,7 +37,7 @@ from typing import Callable, Optional, Sequence
 
 import numpy as np
 
-from asap_dsl.processes import pool_size
+from asap_dsl.processes import pool_size, wall_timeout
 from asap_dsl.rollout import Evaluator
 from asap_dsl.sampling import EVAL_SEED, task_states
 from asap_dsl.stl import ir
@@ -123,8 +123,11 @@ def _threads_for_workers(parent: int) -> None:
     pool_worker(parent)
 
 
-def _map(payloads: list, workers: int, progress: Optional[Callable[[int], None]]) -> list[PlannedState]:
-    """Run the chunks (in ``workers`` processes when more than one); results by index."""
+def _map(payloads: list, workers: int, progress: Optional[Callable[[int], None]],
+         wait: Callable[[], Optional[float]] = lambda: None) -> list[PlannedState]:
+    """Run the chunks (in ``workers`` processes when more than one); results by index. ``wait()``:
+    how long the next result may still be waited for (None: for ever; a wall-clock cap's,
+    :func:`~asap_dsl.processes.wall_timeout`), past which the chunks still running are given up."""
     parts: list = []
     if pool_size(workers) == 1:
         for p in payloads:
@@ -140,7 +143,12 @@ def _map(payloads: list, workers: int, progress: Optional[Callable[[int], None]]
         # swimmer's second task; reproduced with a forked pool whose child collects an inherited
         # MujocoSwimmer(nthread=2)). A spawned worker starts clean.
         with mp.get_context("spawn").Pool(workers, initializer=_threads_for_workers, initargs=(os.getpid(),)) as pool:
-            for part in pool.imap_unordered(_plan_chunk, payloads):
+            results = pool.imap_unordered(_plan_chunk, payloads)
+            for _ in payloads:
+                try:
+                    part = results.next(wait())
+                except mp.TimeoutError:
+                    break
                 parts.append(part)
                 if progress is not None:
                     progress(len(part))
@@ -192,8 +200,12 @@ def plan_states(prog, task: Optional[str] = None, episodes: int = 1000, seed: in
     n_chunks = min(len(states), 8 * workers)  # in one process too: progress after each chunk
     chunks = [c for c in np.array_split(np.arange(len(states)), n_chunks) if len(c)]
     common = (prog.source, prog.file, planner.task_name, budget, time_limit, seed)
+
+    def wait() -> Optional[float]:
+        return wall_timeout(until, float(budget_seconds or 0.0), time_limit)
+
     planned = _map([common + (states[c], [int(i) for i in c], warm, None, None, until) for c in chunks],
-                   workers, progress)
+                   workers, progress, wait)
     by_index = {r.index: r for r in planned}
     results = [by_index[i] for i in range(len(states)) if i in by_index]
     pool = shortest_sequences(results, budget.exchange)
@@ -203,7 +215,7 @@ def plan_states(prog, task: Optional[str] = None, episodes: int = 1000, seed: in
         own = {r.index: r.to_dict(with_actions=True) for r in results}
         kept = [c for c in (c[np.isin(c, list(at))] for c in chunks) if len(c)]
         again = _map([common + (states[c], [int(i) for i in c], None, pool, [own[int(i)] for i in c], until)
-                      for c in kept], workers, None)
+                      for c in kept], workers, None, wait)
         for r in again:
             cur = results[at[r.index]]
             if r.steps is not None and (cur.steps is None or r.steps < cur.steps):

@@ -38,7 +38,7 @@ from typing import Callable, Optional, Sequence
 
 import numpy as np
 
-from asap_dsl.processes import pool_size, pool_worker
+from asap_dsl.processes import pool_size, pool_worker, wall_timeout
 from asap_dsl.sampling import EVAL_SEED, task_states
 from asap_dsl.stl import ir
 
@@ -238,7 +238,10 @@ def run(prog, task: Optional[str] = None, episodes: int = 1000, seed: int = EVAL
             for payload in itertools.islice(pending, 2 * workers):
                 running.append(pool.apply_async(_worker, (payload,)))
             while running:
-                part = running.pop(0).get()
+                try:
+                    part = running.pop(0).get(wall_timeout(until, min(walls or [0.0]), time_limit))
+                except mp.TimeoutError:  # past the wall's cap: what still runs is given up
+                    break
                 parts.append(part)
                 if on_part is not None:
                     on_part([StateResult.from_dict(d) for d in part])
