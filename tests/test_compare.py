@@ -236,3 +236,20 @@ def test_sweep_workers_each_hold_their_own_core(monkeypatch):
     assert sweep._free_core([alive(3)], 2) == 5
     assert sweep._free_core([dead, alive(5)], 2) == 3  # a dead worker's core is free again
     assert sweep._free_core([], 1) is None and sweep._free_core([], 3) is None
+
+
+def test_what_was_run_says_what_each_run_did_beyond_its_learner():
+    from asap_dsl.backends.compare.paired import run_phases
+
+    alone = {"config": {"imitation": 0.0}}
+    assert run_phases(alone) == "the learner alone"
+    package = {"config": {"imitation": 0.1},
+               "demonstrations": {"added": 2268, "searcher": "oracle"},
+               "late_demonstrations": [{"added": 0}, {"added": 228, "searcher": "oracle"}],
+               "policy_search": {"iterations": 1000, "kept_iteration": 775}}
+    assert run_phases(package) == ("oracle's paths of 2,268 states from the start, imitated (weight 0.1); "
+                                   "oracle's paths of 228 states on a stall; search: iteration 775 of 1,000 kept")
+    none_kept = {"config": {}, "demonstrations": {"added": 28, "searcher": "planner"},
+                 "policy_search": {"iterations": 40, "kept_iteration": None}}
+    assert run_phases(none_kept) == ("planner's paths of 28 states from the start; "
+                                     "search: 40 iterations, the learner's model kept")

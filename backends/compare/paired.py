@@ -274,6 +274,27 @@ def _keeping_summaries(on_event, summaries: str, algo: str, reward: str, episode
     return told
 
 
+def run_phases(manifest: dict) -> str:
+    """What a run did beyond its learner, in a few words, from its manifest: the oracle's (or the
+    planner's) paths it was given and whether its actor imitated them, and the policy search."""
+    cfg = manifest.get("config") or {}
+    parts = []
+    for key, when in (("demonstrations", "from the start"), ("late_demonstrations", "on a stall")):
+        found = manifest.get(key)
+        for d in (found if isinstance(found, list) else [found] if found else []):
+            if isinstance(d, dict) and d.get("added"):
+                parts.append(f"{d.get('searcher', 'oracle')}'s paths of {int(d['added']):,} states {when}")
+    if parts and float(cfg.get("imitation") or 0.0) > 0:
+        parts[0] += f", imitated (weight {float(cfg['imitation']):g})"
+    search = manifest.get("policy_search")
+    if isinstance(search, dict):
+        kept = search.get("kept_iteration")
+        its = int(search.get("iterations") or 0)
+        parts.append(f"search: iteration {int(kept):,} of {its:,} kept" if kept is not None
+                     else f"search: {its:,} iterations, the learner's model kept")
+    return "; ".join(parts) or "the learner alone"
+
+
 def _status(result: dict) -> str:
     """What this sweep did with a run: ``trained now``, ``resumed`` (from an interrupted sweep's
     checkpoint) or ``reused`` (finished before)."""
@@ -474,7 +495,7 @@ def _compare(specs, tasks, rewards, algos, seeds, steps, preset, workers, ray, o
     t2 = list(table2.values()) if len(algos) > 1 else []
     runs = [{"label": f"{labels[r['job']['spec']]} {r['job']['task']} {r['job']['algo']} {r['job']['reward']}",
              "spec_hash": r["manifest"]["spec_hash"], "seed": r["job"]["seed"], "preset": Job(**r["job"]).training(),
-             "steps": r["steps"], "seconds": r["seconds"], "status": _status(r)}
+             "phases": run_phases(r["manifest"]), "steps": r["steps"], "seconds": r["seconds"], "status": _status(r)}
             for r in loaded]
     phase[0] = "the report"
     data = ReportData(title="ASAP-Phi comparison: " + ", ".join(sorted(set(labels.values()))),

@@ -100,7 +100,7 @@ class ReportData:
     columns: list[Column]
     table1: list[Method]      # rewards (first algorithm) + greedy
     table2: list[Method]      # algorithms (first reward)
-    runs: list[dict]          # what was run: label, spec hash, seed, preset, steps, seconds, versions
+    runs: list[dict]          # what was run: label, spec hash, seed, preset, phases, steps, seconds, status
     # Table 2 also within these (the paper's Table 2 tolerance where the spec does not name it).
     table2_tolerances: list[int] = field(default_factory=list)
     plots: dict[str, bytes] = field(default_factory=dict)  # name -> PNG
@@ -289,14 +289,22 @@ def markdown(data: ReportData, plot_dir: str = "plots") -> str:
     for name, title in plot_titles(cols).items():
         if name in data.plots:
             lines += [f"## {title}", "", f"![{title}]({plot_dir}/{name}.png)", ""]
-    lines += ["## What was run", "", _md_table(["run", "spec sha256", "seed", "preset", "steps", "train s", "status"],
-                                                [[r["label"], r["spec_hash"][:12], str(r["seed"]), r["preset"],
-                                                  f"{r['steps']:,}", f"{r['seconds']:.1f}", r["status"]] for r in data.runs]),
+    lines += ["## What was run", "", _md_table(RUN_COLUMNS, run_rows(data)),
               "", "Package versions: " + ", ".join(f"{k} {v}" for k, v in data.versions.items()) + ".",
               f"Report built in {data.seconds:.1f} s."]
     for n in data.notes:
         lines += ["", f"Note: {n}"]
     return "\n".join(lines) + "\n"
+
+
+RUN_COLUMNS = ["run", "spec sha256", "seed", "preset", "beyond the learner", "steps", "train s", "status"]
+
+
+def run_rows(data: ReportData) -> list[list[str]]:
+    """The rows of "What was run", in :data:`RUN_COLUMNS` order (a report read back from before
+    runs recorded their phases shows none)."""
+    return [[r["label"], r["spec_hash"][:12], str(r["seed"]), r["preset"], r.get("phases", ""), f"{r['steps']:,}",
+             f"{r['seconds']:.1f}", r["status"]] for r in data.runs]
 
 
 def unique(methods: list[Method]) -> list[Method]:
@@ -366,10 +374,8 @@ def html_page(data: ReportData) -> str:
             b64 = base64.b64encode(data.plots[name]).decode("ascii")
             body += [f"<h2>{html.escape(title)}</h2>",
                      f'<img id="plot-{name}" alt="{html.escape(title)}" src="data:image/png;base64,{b64}">']
-    runs = [[r["label"], r["spec_hash"][:12], str(r["seed"]), r["preset"], f"{r['steps']:,}", f"{r['seconds']:.1f}",
-             r["status"]] for r in data.runs]
     body += ["<h2>What was run</h2>",
-             _html_table(["run", "spec sha256", "seed", "preset", "steps", "train s", "status"], _escape_rows(runs, 99), "runs"),
+             _html_table(RUN_COLUMNS, _escape_rows(run_rows(data), 99), "runs"),
              "<p>Package versions: " + html.escape(", ".join(f"{k} {v}" for k, v in data.versions.items()))
              + f". Report built in {data.seconds:.1f} s.</p>"]
     for n in data.notes:
