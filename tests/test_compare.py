@@ -253,3 +253,29 @@ def test_what_was_run_says_what_each_run_did_beyond_its_learner():
                  "policy_search": {"iterations": 40, "kept_iteration": None}}
     assert run_phases(none_kept) == ("planner's paths of 28 states from the start; "
                                      "search: 40 iterations, the learner's model kept")
+
+
+def test_a_summary_evaluated_on_more_states_serves_a_report_on_their_first():
+    """A summary keeps no model: the swimmer's runs are evaluated on 1000 states and its report on
+    the planner's 200, the first of them. Cut, the evaluation is the one on those states."""
+    import asap_dsl
+    from asap_dsl.backends.compare.paired import _evaluation, _prefix_evaluation
+    from asap_dsl.sampling import EVAL_SEED, task_states
+
+    class Push:  # a proportional pull towards the goal's angle: reaches some states in time, not others
+        def reset(self, states):
+            pass
+
+        def act(self, obs, states, t):
+            return np.clip(20.0 * (np.pi / 2 - states[:, :1]) - 2.0 * states[:, 1:2], -20.0, 20.0)
+
+    prog = asap_dsl.load(Path(__file__).resolve().parents[1] / "specs" / "dc_motor.asap")
+    tm = prog.task("reach").model
+    many, few = (task_states(prog.system, tm, n, seed=EVAL_SEED) for n in (60, 20))
+    whole = _evaluation(prog, "reach", many, None, "push", Push())
+    alone = _evaluation(prog, "reach", few, None, "push", Push())
+    cut = _prefix_evaluation(whole, prog, "reach", few, None)
+    assert cut["episodes"] == 20 and cut["rows"] == alone["rows"] and cut["per_state"] == alone["per_state"]
+    assert 0 < alone["rows"][0]["count"] < 20  # a cut that matters
+    assert _prefix_evaluation(whole, prog, "reach", task_states(prog.system, tm, 20, seed=7), None) is None
+    assert _prefix_evaluation(alone, prog, "reach", many, None) is None  # fewer states cannot serve more

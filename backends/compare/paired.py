@@ -113,20 +113,53 @@ def _lookahead_evaluation(result: dict, prog, task: str, states: np.ndarray, ora
     return ev
 
 
-def _run_evaluation(result: dict, episodes: int, oracle) -> dict:
-    """The run's evaluation on the sweep's states: its final one when it used them, else a new one;
-    the ASAP gap against the oracle recomputed (the run may have finished before the oracle)."""
+def _prefix_evaluation(ev: dict, prog, task: str, states: np.ndarray, oracle) -> Optional[dict]:
+    """An evaluation on more states of the evaluation seed, cut to the sweep's ``states`` where those
+    are its first (the seeded draw is one stream, except where a state was redrawn: checked); None
+    where they are not. How a summary (no model) serves a report on fewer states: the swimmer's
+    runs are evaluated on 1000 states, its report on the planner's 200."""
+    from asap_dsl.rollout import RolloutResult
+
+    from ..rl.evaluation import summarise
+
+    n = len(states)
+    per = ev.get("per_state") or {}
+    if not (ev.get("seed") == EVAL_SEED and isinstance(ev.get("episodes"), int) and ev["episodes"] > n
+            and len(per.get("t_reach") or []) == ev["episodes"] and len(per.get("end_reason") or []) == ev["episodes"]):
+        return None
+    model = prog.task(task).model
+    if not np.array_equal(task_states(prog.system, model, ev["episodes"], seed=EVAL_SEED)[:n], states):
+        return None
+    t = np.array([np.inf if x is None else float(x) for x in per["t_reach"][:n]])
+    res = RolloutResult(states, t, np.array(per["end_reason"][:n]), np.zeros(n, np.int64), np.zeros(n),
+                        model.deadline)
+    cut = summarise(res, method=ev.get("method", ""), prog=prog, task=task, seed=EVAL_SEED,
+                    tolerances=list(ev.get("tolerances") or model.tolerances), oracle=oracle,
+                    seconds=float(ev.get("seconds") or 0.0)).to_dict()
+    cut["notes"] = list(ev.get("notes") or []) + [f"the first {n:,} of the run's {ev['episodes']:,} evaluation states"]
+    return cut
+
+
+def _run_evaluation(result: dict, episodes: int, oracle, prog=None, task: Optional[str] = None,
+                    states: Optional[np.ndarray] = None) -> dict:
+    """The run's evaluation on the sweep's states: its final one when it used them (or their
+    superset, cut: :func:`_prefix_evaluation`), else a new one; the ASAP gap against the oracle
+    recomputed (the run may have finished before the oracle)."""
     from asap_dsl.stats import asap_gap
 
     ev = result["evaluation"]
     if not (ev.get("episodes") == episodes and ev.get("seed") == EVAL_SEED and "per_state" in ev):
-        if not result.get("model", True):
+        cut = None if states is None else _prefix_evaluation(ev, prog, task, states, oracle)
+        if cut is not None:
+            ev = cut
+        elif not result.get("model", True):
             raise RunError(f"its summary's evaluation is on {ev.get('episodes')} states of seed {ev.get('seed')}, "
                            f"not {episodes} of seed {EVAL_SEED}, and its model was not kept: train it again")
-        from ..rl.evaluation import evaluate
+        else:
+            from ..rl.evaluation import evaluate
 
-        ev = json.loads(json.dumps(json_safe(evaluate(result["run_dir"], episodes=episodes, oracle="cache",
-                                                      write=False).to_dict())))
+            ev = json.loads(json.dumps(json_safe(evaluate(result["run_dir"], episodes=episodes, oracle="cache",
+                                                          write=False).to_dict())))
     if oracle is not None:
         t = np.array([np.inf if x is None else float(x) for x in ev["per_state"]["t_reach"]])
         ev["gap"] = asap_gap(t, oracle.steps)
@@ -466,7 +499,7 @@ def _compare(specs, tasks, rewards, algos, seeds, steps, preset, workers, ray, o
         for r in sorted(mine, key=lambda r: r["job"]["seed"]):
             j = r["job"]
             try:
-                ev = _run_evaluation(r, episodes, oracle)
+                ev = _run_evaluation(r, episodes, oracle, prog, job.task, states)
             except RunError as err:  # a summary evaluated on other states: nothing to evaluate again
                 notes.append(f"{what(r)}: not used ({err})")
                 continue
