@@ -190,7 +190,8 @@ def run(prog, task: Optional[str] = None, episodes: int = 1000, seed: int = EVAL
 
     # No state is begun after this wall-clock time (the workers read it too: the overrun is one state's).
     walls = [w for w in (wall_seconds, budget_seconds if clock is None else None) if w is not None]
-    until = None if not walls else time.time() + max(0.0, min(walls) - (time.perf_counter() - start))
+    cap = min(walls) if walls else 0.0
+    until = None if not walls else time.time() + max(0.0, cap - (time.perf_counter() - start))
 
     def spent() -> bool:
         return until is not None and time.time() >= until
@@ -239,7 +240,7 @@ def run(prog, task: Optional[str] = None, episodes: int = 1000, seed: int = EVAL
                 running.append(pool.apply_async(_worker, (payload,)))
             while running:
                 try:
-                    part = running.pop(0).get(wall_timeout(until, min(walls or [0.0]), time_limit))
+                    part = running.pop(0).get(wall_timeout(until, cap, time_limit))
                 except mp.TimeoutError:  # past the wall's cap: what still runs is given up
                     break
                 parts.append(part)
