@@ -49,8 +49,8 @@ def headroom(args, loaded) -> int:
             prefix[:len(a), i] = a
     ev = Evaluator(prog, cfg.task, states, reward=cfg.reward)
     policy = loaded.controller()
-    g_pol, t_pol = rollout_batch(ev, policy, states, gamma, fail)
-    g_or, t_or = rollout_batch(ev, Prefix(policy, prefix), states, gamma, fail)
+    g_pol, t_pol, _ = rollout_batch(ev, policy, states, gamma, fail)
+    g_or, t_or, _ = rollout_batch(ev, Prefix(policy, prefix), states, gamma, fail)
     sooner = np.isfinite(t_or) & (t_or < t_pol)
     same = np.isfinite(t_or) & (t_or == t_pol)
     print(f"{args.run}: the oracle on {len(states)} states (seed {args.seed}) in {time.time() - t0:.0f} s")
@@ -127,7 +127,7 @@ def main() -> int:
     s.add_argument("--lr", type=float, default=0.003)
     s.add_argument("--every", type=int, default=25)
     s.add_argument("--seed", type=int, default=555)
-    s.add_argument("--objective", choices=("arrival", "return"), default="arrival")
+    s.add_argument("--objective", choices=("arrival", "return", "tolerances"), default="arrival")
     s.add_argument("--validation", type=int, default=0, help="validation states (default: the run's)")
     args = ap.parse_args()
     from asap_dsl.backends.rl.config import VALIDATION_SEED

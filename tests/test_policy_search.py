@@ -119,7 +119,8 @@ def test_tied_candidates_pull_no_way():
     ({"population": 7}, "population an even one"),
     ({"sigma": -0.1}, "sigma and learning_rate"),
     ({"learning_rate": float("nan")}, "sigma and learning_rate"),
-    ({"objective": "speed"}, "one of arrival, return"),
+    ({"objective": "speed"}, "one of arrival, return, tolerances"),
+    ({"max_smoothing_loss": -0.01}, "max_smoothing_loss takes a finite number of at least 0"),
     ({"time_share": 1.0}, "time_share"),
     ({"gait": 3}, "no setting gait"),
 ])
@@ -213,3 +214,53 @@ def test_a_time_limited_run_leaves_the_search_its_share(tiny, tmp_path):
     assert res.status == "finished" and 1 <= record["iterations"] < 1_000_000
     assert res.steps < 5_000_000 and max(r["seconds"] for r in res.curves) < 0.75 * 12 + 3  # the learner's share
     assert 12 <= res.seconds < 12 + 4  # the search took the rest, and stopped on the clock
+
+
+def test_an_arrival_within_its_step_is_where_the_robustness_crosses_zero():
+    from asap_dsl.backends.rl.policy_search import crossing_time, rollout_batch
+    from asap_dsl.rollout import ConstantController, Evaluator
+
+    before, after = np.array([-1.0, -3.0, np.nan, 0.5]), np.ones(4)
+    np.testing.assert_allclose(crossing_time(5.0, before, after), [4.5, 4.75, 5.0, 5.0])
+    # At full speed the rail moves 0.2 a step and the goal's robustness is x - 0.8 below it:
+    # linear in time, so the interpolated arrival is the exact one.
+    prog = asap_dsl.loads(RAIL, "rail.asap")
+    states = np.array([[0.01], [0.05], [-0.33]])
+    _, arrival, crossing = rollout_batch(Evaluator(prog, None, states), ConstantController([1.0]), states, 0.9, None)
+    exact = (0.8 - states[:, 0]) / 0.2
+    np.testing.assert_allclose(crossing, exact, atol=1e-6)
+    np.testing.assert_array_equal(arrival, np.ceil(exact))
+
+
+def test_the_tolerances_objective_counts_an_arrival_sooner_within_the_step():
+    from asap_dsl.backends.rl.policy_search import SearchSettings
+
+    search, _ = _search(SearchSettings(population=2, batch=2, objective="tolerances"))
+    crossing = np.array([4.2, np.inf, 4.6, np.inf])  # two candidates, two states each; one never arrives
+    f = search.fitness(np.zeros(4), np.ceil(crossing), crossing)
+    assert f[0] > f[1]
+    within_5 = 1 / (1 + np.exp(-(5 - 4.2) / 0.5))  # the rail's tolerances are 20, 10 and 5 steps
+    assert f[0] == pytest.approx((within_5 + 2 * 1.0) / 3 / 2, abs=1e-3)
+
+
+def test_the_perturbations_shrink_until_they_cost_the_actor_little():
+    from asap_dsl.backends.rl.policy_search import SCALES, SearchSettings, smoothing_scale
+
+    tried = []
+    assert smoothing_scale(lambda f: tried.append(f) or 10 * f, 0.5) == SCALES[3] and tried == list(SCALES)
+    assert smoothing_scale(lambda f: 10 * f, 5.0) == SCALES[1]
+    assert smoothing_scale(lambda f: 1.0, 0.0) == SCALES[-1]  # none small enough: the smallest
+    # A climbed actor loses nothing to no perturbation and much to a large one; the search then
+    # takes a smaller scale, and its first Adam step moves each parameter by learning rate x scale.
+    search, _ = _search(SearchSettings(iterations=40, population=32, batch=64, sigma=0.1, learning_rate=0.03))
+    state = search.start(0.0)
+    for _ in range(40):
+        state = search.iterate(state)
+    assert search.smoothing_loss(state.theta, 0.0) == pytest.approx(0.0, abs=1e-12)
+    assert search.smoothing_loss(state.theta, 3.0) > 0.1
+    sharp, _ = _search(SearchSettings(population=32, batch=64, sigma=3.0, learning_rate=0.03, max_smoothing_loss=0.02))
+    sharp.family.theta0 = state.theta
+    begun = sharp.start(0.0)
+    assert begun.scale < 1.0
+    step = np.abs(sharp.iterate(begun).theta - state.theta)
+    np.testing.assert_allclose(step.max(), 0.03 * begun.scale, rtol=1e-4)

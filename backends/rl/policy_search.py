@@ -29,8 +29,8 @@ from typing import Any, Callable, Mapping, Optional
 
 import numpy as np
 
-__all__ = ["OBJECTIVES", "SEARCH_SEEDS", "SEARCHABLE", "ActorFamily", "PolicySearch", "SearchSettings",
-           "SearchState", "centred_ranks", "rollout_batch"]
+__all__ = ["OBJECTIVES", "SCALES", "SEARCH_SEEDS", "SEARCHABLE", "ActorFamily", "PolicySearch", "SearchSettings",
+           "SearchState", "centred_ranks", "crossing_time", "rollout_batch", "smoothing_scale"]
 
 #: The search's training states: seed ``SEARCH_SEEDS + 10,000 x run seed + iteration`` (never the
 #: validation's 7 nor the evaluation's 2024).
@@ -44,8 +44,19 @@ SEARCHABLE = (("sac", "sbx"), ("td3", "sbx"), ("ddpg", "sbx"))
 #: ``arrival``: minus the mean step at which the goal first holds, counting a state that never
 #: reaches it within the episode (or fails) as one step past the episode's end;
 #: ``return``: the mean discounted return of the run's reward (a failure step earning the run's
-#: failure reward, as in training).
-OBJECTIVES = ("arrival", "return")
+#: failure reward, as in training);
+#: ``tolerances``: what validation ranks, the mean over the task's tolerances of the share that
+#: arrives within each, made smooth: each state counts ``sigmoid((T - a) / TOLERANCE_SOFTNESS)``
+#: within tolerance T, ``a`` its arrival interpolated within the step from the goal's robustness
+#: (:func:`crossing_time`), so that a candidate arriving sooner within the same step counts.
+OBJECTIVES = ("arrival", "return", "tolerances")
+
+#: The ``tolerances`` objective's softness, in steps: half a step, so that one step sooner or later
+#: at a tolerance moves a state's worth by about three quarters.
+TOLERANCE_SOFTNESS = 0.5
+
+#: The perturbation scales the search may take (:func:`smoothing_scale`): ``sigma`` times each.
+SCALES = (1.0, 10 ** -0.5, 0.1, 10 ** -1.5)
 
 
 @dataclass(frozen=True)
@@ -59,6 +70,14 @@ class SearchSettings:
     learning_rate: float = 0.003  # Adam's
     every: int = 25           # iterations between validations
     objective: str = "arrival"
+    # The perturbations adapt to how sharp the actor is (None: ``sigma`` as given): the largest of
+    # ``sigma`` times :data:`SCALES` whose candidates lose at most this much of the validation
+    # score (the mean rate over the tolerances) on average against the unperturbed actor, measured
+    # once at the start on fresh states; the learning rate follows the same factor. Why
+    # (docs/training.md, "The search's step, scaled to the actor"): evolution strategies climb the
+    # Gaussian-smoothed objective, and where a perturbation of sigma already ruins the policy, its
+    # optimum is another policy's.
+    max_smoothing_loss: Optional[float] = None
     # In a time-limited run the learner stops at ``1 - time_share`` of the limit and the search
     # takes the rest; with ``seconds`` it also ends after that many (None: its iterations alone
     # bound it, the same on every machine).
@@ -80,6 +99,10 @@ class SearchSettings:
         if seconds is not None and not (isinstance(seconds, (int, float)) and not isinstance(seconds, bool)
                                         and 0.0 < seconds < math.inf):
             raise ValueError("the policy search's seconds take a positive finite number or none")
+        loss = self.max_smoothing_loss
+        if loss is not None and not (isinstance(loss, (int, float)) and not isinstance(loss, bool)
+                                     and 0.0 <= loss < math.inf):
+            raise ValueError("the policy search's max_smoothing_loss takes a finite number of at least 0, or none")
         if self.objective not in OBJECTIVES:
             raise ValueError(f"the policy search's objective is one of {', '.join(OBJECTIVES)}; got {self.objective!r}")
 
@@ -109,11 +132,12 @@ class SearchState:
     best_iteration: Optional[int] = None  # None: no search iterate has beaten the learner's best yet
     seconds: float = 0.0
     validations: list = field(default_factory=list)  # {"iteration", "score", "rates"} per validation
+    scale: float = 1.0         # the factor on sigma and the learning rate (:func:`smoothing_scale`)
 
     def summary(self, score_before: float) -> dict:
         """What the run's manifest records of the search (``policy_search``)."""
         return {"iterations": self.iteration, "seconds": round(self.seconds, 3), "kept_iteration": self.best_iteration,
-                "score_before": float(score_before), "score": round(self.best_score, 6),
+                "score_before": float(score_before), "score": round(self.best_score, 6), "scale": self.scale,
                 "validations": self.validations}
 
     def kept(self) -> Optional[dict]:
@@ -121,10 +145,21 @@ class SearchState:
         return next((r for r in self.validations if r["iteration"] == self.best_iteration), None)
 
 
+def crossing_time(step: np.ndarray, before: np.ndarray, after: np.ndarray) -> np.ndarray:
+    """When the goal's robustness crossed zero within each arrival ``step``: linearly between its
+    value before the step (negative) and after it (at least 0), ``step`` itself where either is
+    not finite or the goal held already."""
+    with np.errstate(divide="ignore", invalid="ignore"):
+        share = np.where((before < 0) & (after >= 0) & np.isfinite(before) & np.isfinite(after),
+                         after / (after - before), 0.0)
+    return step - np.clip(share, 0.0, 1.0)
+
+
 def rollout_batch(evaluator, controller, states: np.ndarray, gamma: float, failure_reward: Optional[float]):
     """Per row of ``states``: the discounted return of the evaluator's reward (a failure step
-    earning ``failure_reward``, as in training; None: the reward's own) and the step at which the
-    goal first holds (inf if never, or after a failure)."""
+    earning ``failure_reward``, as in training; None: the reward's own), the step at which the
+    goal first holds (inf if never, or after a failure) and that arrival within its step
+    (:func:`crossing_time`)."""
     core = evaluator.core
     T, m = evaluator.steps, core.system.n_action
     obs = core.start(states, T)
@@ -133,6 +168,8 @@ def rollout_batch(evaluator, controller, states: np.ndarray, gamma: float, failu
     ret, disc = np.zeros(n), 1.0
     running = np.ones(n, dtype=bool)
     arrival = np.where(core.asap.sat, 0.0, np.inf)
+    crossing = arrival.copy()
+    before = np.array(core.asap.rob, dtype=np.float64)
     for t in range(T):
         if not running.any():
             break
@@ -141,11 +178,23 @@ def rollout_batch(evaluator, controller, states: np.ndarray, gamma: float, failu
         if failure_reward is not None:
             r = np.where(failed, failure_reward, r)
         ret += disc * r * running
+        after = np.array(core.asap.step_rob, dtype=np.float64)
         newly = running & core.asap.step_sat & ~failed & ~np.isfinite(arrival)
         arrival[newly] = t + 1
+        crossing[newly] = crossing_time(t + 1.0, before[newly], after[newly])
+        before = after
         disc *= gamma
         running &= ~done
-    return ret, arrival
+    return ret, arrival, crossing
+
+
+def smoothing_scale(loss_at: Callable[[float], float], max_loss: float) -> float:
+    """The largest of :data:`SCALES` at which ``loss_at(scale)`` (the candidates' mean loss of
+    validation score against the unperturbed actor) is at most ``max_loss``; the smallest if none."""
+    for scale in SCALES:
+        if loss_at(scale) <= max_loss:
+            return scale
+    return SCALES[-1]
 
 
 def centred_ranks(f: np.ndarray) -> np.ndarray:
@@ -216,17 +265,47 @@ class PolicySearch:
         self.trainer = Evaluator(prog, task, np.repeat(some, K * B, axis=0), reward=reward)
 
     def start(self, best_score: float) -> SearchState:
-        """A search from the family's parameters, to beat ``best_score`` on validation."""
+        """A search from the family's parameters, to beat ``best_score`` on validation; its
+        perturbations' scale chosen for this actor (:attr:`SearchSettings.max_smoothing_loss`)."""
         theta = self.family.theta0.copy()
         rng = np.random.default_rng([SEARCH_SEEDS, self.seed])
+        scale = 1.0
+        if self.settings.max_smoothing_loss is not None:
+            scale = smoothing_scale(lambda f: self.smoothing_loss(theta, self.settings.sigma * f),
+                                    float(self.settings.max_smoothing_loss))
         return SearchState(iteration=0, theta=theta, first=np.zeros_like(theta), second=np.zeros_like(theta),
-                           rng=rng.bit_generator.state, best_theta=theta.copy(), best_score=float(best_score))
+                           rng=rng.bit_generator.state, best_theta=theta.copy(), best_score=float(best_score),
+                           scale=float(scale))
 
-    def fitness(self, returns: np.ndarray, arrival: np.ndarray) -> np.ndarray:
-        """Each candidate's worth (higher is better) from its rows' returns and arrival steps."""
+    def smoothing_loss(self, theta: np.ndarray, sigma: float) -> float:
+        """How much of the validation score (the mean rate over the tolerances) candidates
+        perturbed by ``sigma`` lose on average against ``theta`` itself: half a population of
+        blocks (the first unperturbed), each on the same fresh states (never the validation's)."""
+        from asap_dsl.sampling import task_states
+
+        K, B = self.settings.population, self.settings.batch
+        blocks = K // 2
+        x0 = task_states(self.prog.system, self.model, K * B // blocks, seed=SEARCH_SEEDS - 1 - self.seed)
+        eps = np.random.default_rng([SEARCH_SEEDS - 1, self.seed]).standard_normal((blocks, len(theta)))
+        eps[0] = 0.0
+        self.family.thetas = theta[None] + sigma * eps
+        _, arrival, _ = rollout_batch(self.trainer, self.family, np.tile(x0, (blocks, 1)), self.gamma,
+                                      self.failure_reward)
+        within = np.stack([(arrival <= T).reshape(blocks, -1).mean(axis=1) for T in self.tolerances])
+        score = within.mean(axis=0)
+        return float(score[0] - score[1:].mean())
+
+    def fitness(self, returns: np.ndarray, arrival: np.ndarray, crossing: np.ndarray) -> np.ndarray:
+        """Each candidate's worth (higher is better) from its rows' returns, arrival steps and
+        arrivals within the step."""
         K = self.settings.population
         if self.settings.objective == "return":
             return returns.reshape(K, -1).mean(axis=1)
+        if self.settings.objective == "tolerances":
+            T = np.asarray(self.tolerances, dtype=np.float64)
+            a = np.where(np.isfinite(crossing), crossing, np.inf)[:, None]
+            within = 1.0 / (1.0 + np.exp(np.clip((a - T[None]) / TOLERANCE_SOFTNESS, -50.0, 50.0)))
+            return within.mean(axis=1).reshape(K, -1).mean(axis=1)
         late = float(self.trainer.steps + 1)  # never reached: one step past the episode
         return -np.minimum(arrival, late).reshape(K, -1).mean(axis=1)
 
@@ -241,18 +320,19 @@ class PolicySearch:
         eps = rng.standard_normal((K // 2, len(state.theta)))
         eps = np.concatenate([eps, -eps])
         x0 = task_states(self.prog.system, self.model, s.batch, seed=SEARCH_SEEDS + 10_000 * self.seed + it)
-        self.family.thetas = state.theta[None] + s.sigma * eps
-        returns, arrival = rollout_batch(self.trainer, self.family, np.tile(x0, (K, 1)), self.gamma,
-                                         self.failure_reward)
-        f = self.fitness(returns, arrival)
-        grad = (centred_ranks(f) @ eps) / (K * s.sigma)
+        sigma = s.sigma * state.scale
+        self.family.thetas = state.theta[None] + sigma * eps
+        returns, arrival, crossing = rollout_batch(self.trainer, self.family, np.tile(x0, (K, 1)), self.gamma,
+                                                   self.failure_reward)
+        f = self.fitness(returns, arrival, crossing)
+        grad = (centred_ranks(f) @ eps) / (K * sigma)
         first = 0.9 * state.first + 0.1 * grad
         second = 0.999 * state.second + 0.001 * grad ** 2
         step = (first / (1 - 0.9 ** (it + 1))) / (np.sqrt(second / (1 - 0.999 ** (it + 1))) + 1e-8)
-        return SearchState(iteration=it + 1, theta=state.theta + s.learning_rate * step, first=first, second=second,
-                           rng=rng.bit_generator.state, best_theta=state.best_theta, best_score=state.best_score,
-                           best_iteration=state.best_iteration, seconds=state.seconds,
-                           validations=list(state.validations))
+        return SearchState(iteration=it + 1, theta=state.theta + s.learning_rate * state.scale * step, first=first,
+                           second=second, rng=rng.bit_generator.state, best_theta=state.best_theta,
+                           best_score=state.best_score, best_iteration=state.best_iteration, seconds=state.seconds,
+                           validations=list(state.validations), scale=state.scale)
 
     def validate(self, state: SearchState) -> dict:
         """The current parameters on the validation states; the best kept in ``state`` if they

@@ -419,7 +419,8 @@ class Session:
             self.search = search.start(float(self.best["score"]))
         state = self.search
         self._tell(f"policy search: {settings.iterations:,} iterations of {settings.population} candidates on "
-                   f"{settings.batch} new states each ({settings.objective}), from the best model (validation score "
+                   f"{settings.batch} new states each ({settings.objective}, perturbations of "
+                   f"{settings.sigma * state.scale:.2g}), from the best model (validation score "
                    f"{self.best['score']:.4f}); at iteration {state.iteration:,}")
         limit = self.cfg.time_limit
 
