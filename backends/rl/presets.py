@@ -178,7 +178,7 @@ DEFAULT = Preset(
     description="chosen by measurement on a 2-core CPU: 8 environments (compiled step), 64x64 networks, learning "
                 "rate 1e-3, SAC's target entropy -3 per action, the discount's horizon a third of the deadline, "
                 "observations and actions scaled into [-1, 1]; on known dynamics SAC's SiLU actor imitates the "
-                "oracle's minimum-time paths, and a policy search on the arrival follows the learner",
+                "oracle's minimum-time paths, and a policy search on the rates within the tolerances follows the learner",
     # The budget is the validation curve's (docs/training.md, "The budget"): at most 2,000,000
     # steps, and the run ends once the latest half of its steps brought validation nothing. The
     # swimmer's were 99.6 / 91.9 / 26.0% within 50 / 40 / 30 at 250,000 steps (still rising),
@@ -267,7 +267,7 @@ DEFAULT = Preset(
     imitation_states=2500,
     imitation_seconds=1440.0,
     imitation_time_share=0.6,
-    # After the learner, the arrival climbed directly by evolution strategies on the actor (SAC, TD3,
+    # After the learner, the task's rates climbed directly by evolution strategies on the actor (SAC, TD3,
     # DDPG on sbx; not on a black box, whose rollouts are too slow): 1,000 iterations for a run of
     # 2,000,000 steps, one per 2,000 steps of a shorter one (docs/training.md, "The policy search
     # after the learner"); kept only where it beats the learner's best on validation. It climbs what
