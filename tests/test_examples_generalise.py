@@ -1,7 +1,8 @@
 """The specs written to test whether the default training generalises (issue 18):
 examples/pendulum_swingup.asap (energy pumping), examples/puck_detour.asap and
 examples/rover_detour.asap (detours round an obstacle), examples/planar_quadrotor.asap (an
-under-actuated craft) and examples/cartpole_swingup.asap (energy pumping, under-actuated). Each loads, lints clean, steps finitely, and the oracle's action sequences for two
+under-actuated craft), examples/cartpole_swingup.asap (energy pumping, under-actuated) and
+examples/dubins_turnaround.asap (a car that cannot stop, its goal behind it). Each loads, lints clean, steps finitely, and the oracle's action sequences for two
 states, replayed in the training environment from the same start, reach the goal at the step the
 oracle says without touching the obstacle."""
 
@@ -12,7 +13,7 @@ import pytest
 
 import asap_dsl
 from asap_dsl.backends import oracle as O
-from asap_dsl.sampling import task_states
+from asap_dsl.sampling import init_box, task_states
 from conftest import ROOT, asapc
 
 PENDULUM = ROOT / "examples" / "pendulum_swingup.asap"
@@ -20,9 +21,10 @@ PUCK = ROOT / "examples" / "puck_detour.asap"
 ROVER = ROOT / "examples" / "rover_detour.asap"
 QUADROTOR = ROOT / "examples" / "planar_quadrotor.asap"
 CARTPOLE = ROOT / "examples" / "cartpole_swingup.asap"
-SPECS = [PENDULUM, PUCK, ROVER, QUADROTOR, CARTPOLE]
+DUBINS = ROOT / "examples" / "dubins_turnaround.asap"
+SPECS = [PENDULUM, PUCK, ROVER, QUADROTOR, CARTPOLE, DUBINS]
 CASES = [(PENDULUM, "reach"), (PUCK, "reach"), (PUCK, "reach_avoid"), (ROVER, "reach_avoid"),
-         (QUADROTOR, "reach"), (QUADROTOR, "reach_avoid"), (CARTPOLE, "reach")]
+         (QUADROTOR, "reach"), (QUADROTOR, "reach_avoid"), (CARTPOLE, "reach"), (DUBINS, "reach")]
 
 
 @pytest.mark.parametrize("spec", SPECS, ids=lambda p: p.stem)
@@ -76,6 +78,23 @@ def test_the_rover_must_go_over_the_crater():
     assert np.linalg.norm(starts - c, axis=-1).min() > r and np.linalg.norm(np.array(goal.centre) - c) > r + goal.radius
     y_low = prog.system.state_low[1]
     assert r ** 2 - (y_low - c[1]) ** 2 > 3.8 ** 2  # the disc covers the bottom edge for |x| < 3.8
+
+
+def test_the_dubins_car_drives_away_from_its_goal_first():
+    """The point of the spec: from every corner of the start box the car's first motion takes it
+    further from the goal (it cannot stop nor reverse, and heads within 45 degrees of away), and
+    on the oracle's minimum-time path it comes back only after a loop."""
+    prog = asap_dsl.load(DUBINS)
+    goal = np.array(prog.regions["goal"].centre)
+    low, high = init_box(prog.system, prog.task("reach").model.init_box)
+    corners = np.array(np.meshgrid(*[[lo, hi] for lo, hi in zip(low, high)])).reshape(3, -1).T
+    away = ((corners[:, :2] - goal) * np.stack([np.cos(corners[:, 2]), np.sin(corners[:, 2])], axis=1)).sum(axis=1)
+    assert (away > 0).all(), away  # d/dt |p - goal|^2 / 2 = (p - goal) . v at the start
+    x0 = task_states(prog.system, prog.task("reach").model, 1, seed=2024)[0]
+    r = O.Oracle(prog, "reach", time_limit=30.0).solve(x0)
+    assert r.status == "solved", r
+    distance = np.linalg.norm(np.asarray(r.trajectory)[:, :2] - goal, axis=1)
+    assert distance.max() > distance[0] + 1.0 and r.steps > 30, (distance, r.steps)
 
 
 def _replay(spec, task: str, x0: np.ndarray, actions: np.ndarray):

@@ -264,6 +264,10 @@ class PolicySearch:
         some = task_states(prog.system, self.model, 1, seed=SEARCH_SEEDS)
         self.trainer = Evaluator(prog, task, np.repeat(some, K * B, axis=0), reward=reward)
 
+    def _tolerances(self) -> list[int]:
+        """The tolerances the rates are counted within (a task without any: its episode's length)."""
+        return self.tolerances or [int(self.trainer.steps)]
+
     def start(self, best_score: float) -> SearchState:
         """A search from the family's parameters, to beat ``best_score`` on validation; its
         perturbations' scale chosen for this actor (:attr:`SearchSettings.max_smoothing_loss`)."""
@@ -291,7 +295,7 @@ class PolicySearch:
         self.family.thetas = theta[None] + sigma * eps
         _, arrival, _ = rollout_batch(self.trainer, self.family, np.tile(x0, (blocks, 1)), self.gamma,
                                       self.failure_reward)
-        within = np.stack([(arrival <= T).reshape(blocks, -1).mean(axis=1) for T in self.tolerances])
+        within = np.stack([(arrival <= T).reshape(blocks, -1).mean(axis=1) for T in self._tolerances()])
         score = within.mean(axis=0)
         return float(score[0] - score[1:].mean())
 
@@ -302,7 +306,7 @@ class PolicySearch:
         if self.settings.objective == "return":
             return returns.reshape(K, -1).mean(axis=1)
         if self.settings.objective == "tolerances":
-            T = np.asarray(self.tolerances, dtype=np.float64)
+            T = np.asarray(self._tolerances(), dtype=np.float64)
             a = np.where(np.isfinite(crossing), crossing, np.inf)[:, None]
             within = 1.0 / (1.0 + np.exp(np.clip((a - T[None]) / TOLERANCE_SOFTNESS, -50.0, 50.0)))
             return within.mean(axis=1).reshape(K, -1).mean(axis=1)
