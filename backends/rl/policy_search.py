@@ -51,8 +51,8 @@ SEARCHABLE = (("sac", "sbx"), ("td3", "sbx"), ("ddpg", "sbx"))
 #: (:func:`crossing_time`), so that a candidate arriving sooner within the same step counts.
 OBJECTIVES = ("arrival", "return", "tolerances")
 
-#: The ``tolerances`` objective's softness, in steps: half a step, so that one step sooner or later
-#: at a tolerance moves a state's worth by about three quarters.
+#: The ``tolerances`` objective's softness, in steps: half a step, so that a step sooner across a
+#: tolerance adds about 0.4 to a state's worth there, and one a few steps from it adds little.
 TOLERANCE_SOFTNESS = 0.5
 
 #: The perturbation scales the search may take (:func:`smoothing_scale`): ``sigma`` times each.
