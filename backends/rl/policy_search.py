@@ -295,8 +295,9 @@ class PolicySearch:
         self.family.thetas = theta[None] + sigma * eps
         _, arrival, _ = rollout_batch(self.trainer, self.family, np.tile(x0, (blocks, 1)), self.gamma,
                                       self.failure_reward)
-        within = np.stack([(arrival <= T).reshape(blocks, -1).mean(axis=1) for T in self._tolerances()])
-        score = within.mean(axis=0)
+        tolerances = self._tolerances()
+        within = np.stack([(arrival <= T).reshape(blocks, -1).mean(axis=1) for T in tolerances], axis=1)
+        score = np.array([self.score(dict(zip(tolerances, rates))) for rates in within])  # as validation ranks
         return float(score[0] - score[1:].mean())
 
     def fitness(self, returns: np.ndarray, arrival: np.ndarray, crossing: np.ndarray) -> np.ndarray:
