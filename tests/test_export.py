@@ -79,10 +79,47 @@ def _controller_actions(loaded, states: np.ndarray, steps: np.ndarray) -> np.nda
 
 @pytest.mark.parametrize("key", RUNS, ids=["-".join(map(str, k[:3])) + ("-time" if k[3] else "") for k in RUNS])
 def test_exported_files_give_the_controllers_actions(runs, key, tmp_path, capsys):
+    _check_export(runs[key], key, tmp_path, capsys)
+
+
+def test_a_kept_models_action_gain_is_in_the_exported_files(runs, tmp_path, capsys):
+    """A model the policy search kept acts with its gain (``best.action_gain``): the controller,
+    the ONNX and the TorchScript file alike, and more of its actions sit on the bounds."""
+    import shutil
+
+    from asap_dsl.backends.rl.evaluation import load_run
+
+    key = ("sbx", "sac", "default", False)
+    run = tmp_path / "gained"
+    shutil.copytree(runs[key], run)
+    with RunDir(run) as rd:
+        rd.acquire(exclusive=True)
+        best = rd.read_manifest()["best"]
+        rd.update_manifest(best={**best, "action_gain": 25.0})
+    plain, gained = load_run(runs[key]), load_run(run)
+    assert gained.scaling.gain == 25.0 and plain.scaling.gain == 1.0
+    states = _states(plain.program, "reach")[0]
+    zero = np.zeros(len(states), dtype=np.int64)
+    a1, a15 = _controller_actions(plain, states, zero), _controller_actions(gained, states, zero)
+    np.testing.assert_allclose(np.clip(25.0 * a1, -20.0, 20.0), a15, atol=1e-9)  # V in [-20, 20], centred
+    assert (np.abs(a15) == 20.0).sum() > (np.abs(a1) == 20.0).sum() + 100
+    meta = _check_export(run, key, tmp_path, capsys)
+    assert meta["action_gain"] == 25.0
+    from asap_dsl.runs import RunError
+
+    for bad in (0.5, "1.5", float("nan")):  # a manifest edited by hand: one sentence
+        with RunDir(run) as rd:
+            rd.acquire(exclusive=True)
+            rd.update_manifest(best={**best, "action_gain": bad})
+        with pytest.raises(RunError, match="damaged manifest"):
+            load_run(run)
+
+
+def _check_export(run: Path, key: tuple, tmp_path: Path, capsys) -> dict:
+    """The run's exported ONNX and TorchScript files against its controller; their metadata."""
     from asap_dsl.backends.rl.evaluation import load_run
     from asap_dsl.backends.rl.export import read_metadata
 
-    run = runs[key]
     engine, algo, preset, timed = key
     onnx_file, ts_file = tmp_path / "p.onnx", tmp_path / "p.pt"
     for fmt, path in (("onnx", onnx_file), ("torchscript", ts_file)):
@@ -112,7 +149,8 @@ def test_exported_files_give_the_controllers_actions(runs, key, tmp_path, capsys
             # On the evaluation states, 1e-5 in the action's units (volts); across the state space,
             # 1e-5 of the action's half-range: two float32 networks (torch or XLA against MLAS)
             # differ there by a few units in the last place of tanh near saturation, times 20 V.
-            bound = 1e-5 if which == "evaluation" else 1e-5 * half
+            # A gain multiplies the networks' difference as it does the action.
+            bound = (1e-5 if which == "evaluation" else 1e-5 * half) * loaded.scaling.gain
             assert (err <= bound).all(), (which, float(err.max()))
         assert np.ptp(want) > 0  # the policy is not constant: the comparison says something
     for path in (onnx_file, ts_file):
@@ -121,6 +159,7 @@ def test_exported_files_give_the_controllers_actions(runs, key, tmp_path, capsys
         assert meta["state_names"] == ["theta", "omega", "i"] and meta["action_names"] == ["V"]
         assert meta["action_low"] == [-20.0] and meta["action_high"] == [20.0]
         assert (meta["algo"], meta["engine"], meta["observe_time"]) == (algo, engine, timed)
+    return meta
 
 
 def test_the_default_file_is_in_the_run_and_the_torchscript_metadata_is_json(runs, capsys):

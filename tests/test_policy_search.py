@@ -123,6 +123,9 @@ def test_tied_candidates_pull_no_way():
     ({"max_smoothing_loss": -0.01}, "max_smoothing_loss takes a finite number of at least 0"),
     ({"time_share": 1.0}, "time_share"),
     ({"gait": 3}, "no setting gait"),
+    ({"action_gains": [1.0, 0.9]}, "action_gains take numbers of at least 1"),
+    ({"action_gains": [1.0, 1.1, 1.2]}, "as many as divide its population"),
+    ({"action_gains": [1.0, float("inf")]}, "action_gains"),
 ])
 def test_bad_settings_are_refused_in_words(change, words):
     from asap_dsl.backends.rl.policy_search import SearchSettings
@@ -264,3 +267,37 @@ def test_the_perturbations_shrink_until_they_cost_the_actor_little():
     assert begun.scale < 1.0
     step = np.abs(sharp.iterate(begun).theta - state.theta)
     np.testing.assert_allclose(step.max(), 0.03 * begun.scale, rtol=1e-4)
+
+
+def _constant_actor(family, action: float) -> np.ndarray:
+    """Parameters under which the SAC actor's mean action is ``action`` everywhere: every weight
+    zero, every bias of the action's size (the mean's, the log-std's) atanh(action)."""
+    import jax
+    from jax.flatten_util import ravel_pytree
+
+    params = family._unravel(family.theta0)
+    leaves = jax.tree_util.tree_map(lambda p: np.full(p.shape, np.arctanh(action), np.float32) if p.shape == (1,)
+                                    else np.zeros(p.shape, np.float32), params)
+    return np.asarray(ravel_pytree(leaves)[0], dtype=np.float64)
+
+
+def test_the_gain_chosen_is_the_one_under_which_the_actor_arrives_soonest():
+    from asap_dsl.backends.rl.policy_search import SearchSettings
+
+    # The rail's goal lies right of most starts: a constant push of half the bound arrives sooner
+    # at gain 2 (the bound) than at 1; no push arrives nowhere at any gain, and the smallest stays.
+    search, _ = _search(SearchSettings(population=32, batch=64, action_gains=[2.0, 1.0]))
+    assert search.settings.action_gains == (1.0, 2.0)
+    push, still = _constant_actor(search.family, 0.5), _constant_actor(search.family, 0.0)
+    assert search.choose_gain(push) == 2.0
+    assert search.choose_gain(still) == 1.0
+    search.family.theta0 = push
+    state = search.start(0.0)
+    assert state.gain == 2.0 and state.summary(0.0)["action_gain"] == 2.0
+    row = search.validate(state)  # the iterations and validation act with it
+    assert row["rates"][10] > 0.3
+    alone, _ = _search(SearchSettings(population=32, batch=64))
+    assert alone.choose_gain(push) == 1.0  # no candidates: gain 1
+    search.family.gain = 1.0
+    assert search.validate(state)["score"] == row["score"]  # validate sets the state's gain itself
+    assert search.iterate(state).gain == 2.0  # and every iteration keeps it

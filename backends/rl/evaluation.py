@@ -222,7 +222,11 @@ def _load_run(run: RunDir, spec: Union[str, Path, None]) -> LoadedRun:
     except Exception as err:  # noqa: BLE001 — a damaged or foreign zip: one line, not a trace
         raise RunError(f"{model_path}: cannot load the model ({type(err).__name__}: {str(err).splitlines()[0] if str(err) else ''})") from None
     try:
-        scaling = Scaling.for_run(prog.system, config, prog.task(config.task).model.init_box)
+        # the kept model's action gain (the policy search's choice; 1 for the learner's model)
+        gain = (manifest.get("best") or {}).get("action_gain", 1.0)
+        if isinstance(gain, bool) or not isinstance(gain, (int, float)):
+            raise ValueError(f"its best model's action_gain is {gain!r}, not a number")
+        scaling = Scaling.for_run(prog.system, config, prog.task(config.task).model.init_box, gain=float(gain))
     except ValueError as err:  # a manifest edited by hand
         raise RunError(f"{run.manifest_path}: damaged manifest ({err})") from None
     expected = prog.system.n_state + int("time" in prog.task(config.task).model.observe)  # the env's observation

@@ -15,8 +15,9 @@ raw state, stage by stage:
    A2C's deterministic action is the mean;
 4. what ``predict`` does with it in the model's action space (stable-baselines3 and sbx alike): a
    squashed output mapped from [-1, 1] onto that space, a Gaussian mean clipped into it;
-5. the run's action scaling, [-1, 1] onto the action bounds, then the clip to the bounds that the
-   environment applies.
+5. the run's action scaling: the action times the kept model's gain (``action_gain``, 1 unless the
+   policy search chose another), clipped to [-1, 1] and mapped onto the action bounds, then the clip
+   to the bounds that the environment applies.
 
 The network is read into plain arrays (:class:`Network`) from either engine — torch modules for
 sb3, the flax parameters for sbx — so one builder per format serves both. Every computation is in
@@ -77,6 +78,7 @@ class PolicyFunction:
     action_low: np.ndarray         # [m] the system's action bounds
     action_high: np.ndarray
     metadata: dict = field(default_factory=dict)
+    gain: float = 1.0              # the action scaling's gain (:class:`~.sb3.Scaling`)
 
     @property
     def n_state(self) -> int:
@@ -222,6 +224,7 @@ def policy_function(loaded) -> PolicyFunction:
                                       f"the policy observes (deadline - step) / deadline with deadline "
                                       f"{int(task.deadline)}"} if observe_time else {})},
         "output": f"action: float32 [batch, {system.n_action}] in the action's units, within the bounds",
+        "action_gain": float(scaling.gain),
     }
     if tuple(net.weights[0].shape[:1]) != (n + int(observe_time),) or net.weights[-1].shape[1] != system.n_action:
         raise RunError(f"{loaded.model_file}: the policy's layers do not fit the task's {n} states and "
@@ -236,7 +239,7 @@ def policy_function(loaded) -> PolicyFunction:
         scale_low=None if scaling.act_low is None else np.asarray(scaling.act_low, np.float64),
         scale_high=None if scaling.act_high is None else np.asarray(scaling.act_high, np.float64),
         action_low=np.asarray(system.action_low, np.float64), action_high=np.asarray(system.action_high, np.float64),
-        metadata=meta)
+        metadata=meta, gain=float(scaling.gain))
 
 
 # ------------------------------------------------------------------------------------ TorchScript
@@ -323,6 +326,8 @@ def to_onnx(fn: PolicyFunction) -> bytes:
     # range, float32's rounding of low + (u + 1) * width / 2 would cost digits the policy has.
     x = op("Cast", x, to=TensorProto.DOUBLE)
     if fn.scale_low is not None:
+        if fn.gain != 1.0:
+            x = op("Mul", x, const("action_gain", fn.gain, np.float64))
         x = unscale(x, fn.scale_low, fn.scale_high, "scale", np.float64)
     x = clip(x, const("action_low", fn.action_low, np.float64), const("action_high", fn.action_high, np.float64))
     nodes.append(helper.make_node("Cast", [x], ["action"], to=TensorProto.FLOAT))

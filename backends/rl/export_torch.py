@@ -38,6 +38,7 @@ class Policy(nn.Module):
         self.net = nn.Sequential(*layers)
         self.squashed = bool(fn.squashed)
         self.scaled = fn.scale_low is not None
+        self.gain = float(fn.gain)
         for name, value in (("obs_low", fn.obs_low), ("obs_high", fn.obs_high), ("centre", fn.centre),
                             ("half_width", fn.half), ("model_low", fn.model_low), ("model_high", fn.model_high)):
             self.register_buffer(name, _t(value))
@@ -59,7 +60,7 @@ class Policy(nn.Module):
             y = torch.maximum(torch.minimum(y, self.model_high), self.model_low)
         a = y.to(torch.float64)
         if self.scaled:
-            a = self.scale_low + (torch.clamp(a, -1.0, 1.0) + 1.0) * 0.5 * (self.scale_high - self.scale_low)
+            a = self.scale_low + (torch.clamp(self.gain * a, -1.0, 1.0) + 1.0) * 0.5 * (self.scale_high - self.scale_low)
         return torch.maximum(torch.minimum(a, self.action_high), self.action_low).to(torch.float32)
 
     def forward(self, state: torch.Tensor) -> torch.Tensor:

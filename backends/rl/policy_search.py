@@ -16,6 +16,13 @@ the step. The objective (:data:`OBJECTIVES`) is the task's: how soon each state 
 iterations the deterministic policy is judged on the run's validation states, as the learner's
 models are; the model kept is the best, and the search's only if it beats the learner's best.
 
+Before the first iteration the search also chooses the gain its policy acts with
+(``action_gains``): the actor's action multiplied before the clip onto the bounds, so that actions
+near a bound saturate there (:class:`~.sb3.Scaling`). SAC's squashed Gaussian reaches its bounds
+only at infinity, and a minimum-time path rides them; each gain is judged with the unperturbed actor
+on the same fresh states, the best kept (the smallest of equals), and the iterations and the model
+kept act with it.
+
 Each iteration is a pure function of :class:`SearchState` (parameters, Adam's moments, the random
 generator's state): a checkpoint holds it and a resumed run continues exactly.
 """
@@ -24,7 +31,7 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import asdict, dataclass, field, fields
+from dataclasses import asdict, dataclass, field, fields, replace
 from typing import Any, Callable, Mapping, Optional
 
 import numpy as np
@@ -55,6 +62,10 @@ OBJECTIVES = ("arrival", "return", "tolerances")
 #: tolerance adds about 0.4 to a state's worth there, and one a few steps from it adds little.
 TOLERANCE_SOFTNESS = 0.5
 
+#: The fresh states on which each candidate gain is judged: this many batches of
+#: ``population x batch / len(action_gains)`` states each.
+GAIN_BATCHES = 4
+
 #: The perturbation scales the search may take (:func:`smoothing_scale`): ``sigma`` times each.
 SCALES = (1.0, 10 ** -0.5, 0.1, 10 ** -1.5)
 
@@ -83,6 +94,9 @@ class SearchSettings:
     # bound it, the same on every machine).
     time_share: float = 0.25
     seconds: Optional[float] = None
+    # The gains the policy's action may act with (:class:`~.sb3.Scaling`; None: 1 alone), each
+    # at least 1, as many as divide the population; chosen once at the start on fresh states.
+    action_gains: Optional[tuple] = None
 
     def __post_init__(self) -> None:
         whole = all(isinstance(v, int) and not isinstance(v, bool) and v >= 1
@@ -103,11 +117,23 @@ class SearchSettings:
         if loss is not None and not (isinstance(loss, (int, float)) and not isinstance(loss, bool)
                                      and 0.0 <= loss < math.inf):
             raise ValueError("the policy search's max_smoothing_loss takes a finite number of at least 0, or none")
+        gains = self.action_gains
+        if gains is not None:
+            ok = (isinstance(gains, (list, tuple)) and len(gains) >= 1 and self.population % len(gains) == 0
+                  and all(isinstance(g, (int, float)) and not isinstance(g, bool) and math.isfinite(g) and g >= 1.0
+                          for g in gains))
+            if not ok:
+                raise ValueError("the policy search's action_gains take numbers of at least 1, as many as divide "
+                                 "its population, or none")
+            object.__setattr__(self, "action_gains", tuple(sorted(float(g) for g in gains)))
         if self.objective not in OBJECTIVES:
             raise ValueError(f"the policy search's objective is one of {', '.join(OBJECTIVES)}; got {self.objective!r}")
 
     def to_dict(self) -> dict:
-        return asdict(self)
+        d = asdict(self)
+        if d["action_gains"] is not None:
+            d["action_gains"] = list(d["action_gains"])  # as JSON gives it back
+        return d
 
     @classmethod
     def from_dict(cls, data: Mapping[str, Any]) -> "SearchSettings":
@@ -133,12 +159,13 @@ class SearchState:
     seconds: float = 0.0
     validations: list = field(default_factory=list)  # {"iteration", "score", "rates"} per validation
     scale: float = 1.0         # the factor on sigma and the learning rate (:func:`smoothing_scale`)
+    gain: float = 1.0          # the action gain the candidates act with (:meth:`PolicySearch.choose_gain`)
 
     def summary(self, score_before: float) -> dict:
         """What the run's manifest records of the search (``policy_search``)."""
         return {"iterations": self.iteration, "seconds": round(self.seconds, 3), "kept_iteration": self.best_iteration,
                 "score_before": float(score_before), "score": round(self.best_score, 6), "scale": self.scale,
-                "validations": self.validations}
+                "action_gain": self.gain, "validations": self.validations}
 
     def kept(self) -> Optional[dict]:
         """The validation row of the iteration kept (None: the learner's model stays)."""
@@ -224,6 +251,7 @@ class ActorFamily:
                                      else apply(self._unravel(th), o)))
         self.scaling = scaling
         self.thetas = self.theta0[None]
+        self.gain = scaling.gain  # a float, or per row ``[rows, 1]`` (:meth:`PolicySearch.choose_gain`)
 
     def reset(self, states: np.ndarray) -> None:
         pass
@@ -234,7 +262,7 @@ class ActorFamily:
         k = len(self.thetas)
         o = self.scaling.observation(obs).astype(np.float32).reshape(k, len(obs) // k, -1)
         u = np.asarray(self._act(jnp.asarray(self.thetas, dtype=jnp.float32), jnp.asarray(o)))
-        return self.scaling.action(u.reshape(len(obs), -1))
+        return replace(self.scaling, gain=self.gain).action(u.reshape(len(obs), -1))
 
     def install(self, model, theta: np.ndarray) -> None:
         """``theta`` becomes ``model``'s actor's parameters."""
@@ -273,13 +301,40 @@ class PolicySearch:
         perturbations' scale chosen for this actor (:attr:`SearchSettings.max_smoothing_loss`)."""
         theta = self.family.theta0.copy()
         rng = np.random.default_rng([SEARCH_SEEDS, self.seed])
+        gain = self.choose_gain(theta)
+        self.family.gain = gain
         scale = 1.0
         if self.settings.max_smoothing_loss is not None:
             scale = smoothing_scale(lambda f: self.smoothing_loss(theta, self.settings.sigma * f),
                                     float(self.settings.max_smoothing_loss))
         return SearchState(iteration=0, theta=theta, first=np.zeros_like(theta), second=np.zeros_like(theta),
                            rng=rng.bit_generator.state, best_theta=theta.copy(), best_score=float(best_score),
-                           scale=float(scale))
+                           scale=float(scale), gain=gain)
+
+    def choose_gain(self, theta: np.ndarray) -> float:
+        """The action gain of :attr:`SearchSettings.action_gains` under which ``theta`` scores best
+        (the validation's ranking of its rates) on :data:`GAIN_BATCHES` batches of fresh states,
+        every gain on the same states; the smallest of equals, 1 without candidates."""
+        from asap_dsl.sampling import task_states
+
+        gains = self.settings.action_gains or (1.0,)
+        if self.family.scaling.act_low is None:  # actions not scaled onto [-1, 1]: no gain to take
+            return 1.0
+        if len(gains) == 1:
+            return float(gains[0])
+        K, B, G = self.settings.population, self.settings.batch, len(gains)
+        per = K * B // G
+        tolerances = self._tolerances()
+        within = np.zeros((G, len(tolerances)))
+        self.family.thetas = np.repeat(theta[None], G, axis=0)
+        self.family.gain = np.repeat(np.asarray(gains, dtype=np.float64), per)[:, None]
+        for b in range(GAIN_BATCHES):
+            x0 = task_states(self.prog.system, self.model, per, seed=SEARCH_SEEDS - 1_000 - 10 * self.seed - b)
+            _, arrival, _ = rollout_batch(self.trainer, self.family, np.tile(x0, (G, 1)), self.gamma, self.failure_reward)
+            within += np.stack([(arrival <= T).reshape(G, -1).mean(axis=1) for T in tolerances], axis=1)
+        score = [self.score(dict(zip(tolerances, rates / GAIN_BATCHES))) for rates in within]
+        self.family.gain = 1.0
+        return float(gains[int(np.argmax(score))])  # argmax: the first, the smallest gain, among equals
 
     def smoothing_loss(self, theta: np.ndarray, sigma: float) -> float:
         """How much of the validation score (the mean rate over the tolerances) candidates
@@ -327,6 +382,7 @@ class PolicySearch:
         x0 = task_states(self.prog.system, self.model, s.batch, seed=SEARCH_SEEDS + 10_000 * self.seed + it)
         sigma = s.sigma * state.scale
         self.family.thetas = state.theta[None] + sigma * eps
+        self.family.gain = state.gain
         returns, arrival, crossing = rollout_batch(self.trainer, self.family, np.tile(x0, (K, 1)), self.gamma,
                                                    self.failure_reward)
         f = self.fitness(returns, arrival, crossing)
@@ -337,13 +393,14 @@ class PolicySearch:
         return SearchState(iteration=it + 1, theta=state.theta + s.learning_rate * state.scale * step, first=first,
                            second=second, rng=rng.bit_generator.state, best_theta=state.best_theta,
                            best_score=state.best_score, best_iteration=state.best_iteration, seconds=state.seconds,
-                           validations=list(state.validations), scale=state.scale)
+                           validations=list(state.validations), scale=state.scale, gain=state.gain)
 
     def validate(self, state: SearchState) -> dict:
         """The current parameters on the validation states; the best kept in ``state`` if they
         beat it (strictly: a tie keeps what came first, the learner's model). Returns the row."""
         t0 = time.perf_counter()
         self.family.thetas = state.theta[None]
+        self.family.gain = state.gain
         res = self.validator.run(self.family)
         rates = {T: res.rate(T) for T in self.tolerances}
         score = float(self.score(rates))

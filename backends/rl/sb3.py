@@ -39,6 +39,12 @@ class Scaling:
     box or the state space (:mod:`asap_dsl.observation` chooses per entry; the time entry of
     ``observe state, time`` is already in [0, 1]); actions: the policy's [-1, 1]^m onto the
     action bounds. ``observation = "none"`` and ``action = False`` are identities.
+
+    ``gain`` (at least 1; with action scaling only) multiplies the policy's action before the
+    clip onto [-1, 1]: actions within ``1 / gain`` of a bound saturate there. A squashed Gaussian's
+    mean reaches its bounds only at infinity where minimum-time control rides them; the policy
+    search chooses the gain a run's kept model acts with (``action_gain``, docs/training.md
+    "The deployed action's gain"). Training itself always acts with gain 1.
     """
 
     obs_centre: np.ndarray
@@ -46,6 +52,7 @@ class Scaling:
     act_low: Optional[np.ndarray]
     act_high: Optional[np.ndarray]
     sources: tuple[str, ...] = ()  # per state entry: init, state or none
+    gain: Any = 1.0  # a float, or per row [rows, 1] (the search judges several gains in one batch)
 
     @classmethod
     def for_system(cls, system, observation: str = "none", action: bool = False, init_box=None,
@@ -69,15 +76,29 @@ class Scaling:
                    system.action_high.copy() if action else None, src)
 
     @classmethod
-    def for_run(cls, system, config, init_box=None) -> "Scaling":
+    def for_run(cls, system, config, init_box=None, gain: float = 1.0) -> "Scaling":
         """The scaling a run trained with: its recorded entries, or for a run from before they were
-        recorded, the rule it was trained with (:func:`asap_dsl.observation.legacy_sources`)."""
+        recorded, the rule it was trained with (:func:`asap_dsl.observation.legacy_sources`);
+        ``gain``: its kept model's action gain (1 while it trains)."""
         from asap_dsl.observation import legacy_sources
 
         recorded = getattr(config, "observation_sources", None)
         sources = (list(recorded.values()) if recorded is not None
                    else legacy_sources(system, init_box, config.observation_scaling))
-        return cls.for_system(system, config.observation_scaling, config.action_scaling, init_box, sources=sources)
+        scaling = cls.for_system(system, config.observation_scaling, config.action_scaling, init_box, sources=sources)
+        return scaling if gain == 1.0 else scaling.with_gain(gain)
+
+    def with_gain(self, gain) -> "Scaling":
+        """The same maps with the action multiplied by ``gain`` before its clip (ValueError where the
+        actions are not scaled or the gain is not at least 1 and finite)."""
+        from dataclasses import replace
+
+        g = np.asarray(gain, dtype=np.float64)
+        if not (np.all(np.isfinite(g)) and np.all(g >= 1.0)):
+            raise ValueError(f"an action gain is a finite number of at least 1; got {gain!r}")
+        if self.act_low is None and np.any(g != 1.0):
+            raise ValueError("an action gain needs the actions scaled onto [-1, 1]")
+        return replace(self, gain=gain)
 
     def observation(self, obs: np.ndarray) -> np.ndarray:
         o = np.array(obs, dtype=np.float32, copy=True)
@@ -100,7 +121,7 @@ class Scaling:
         a = np.asarray(a, dtype=np.float64)
         if self.act_low is None:
             return a
-        return self.act_low + (np.clip(a, -1.0, 1.0) + 1.0) * 0.5 * (self.act_high - self.act_low)
+        return self.act_low + (np.clip(self.gain * a, -1.0, 1.0) + 1.0) * 0.5 * (self.act_high - self.act_low)
 
     def policy_action(self, a: np.ndarray) -> np.ndarray:
         """The inverse of :meth:`action`: the policy's action that the environment's action ``a``
@@ -110,7 +131,7 @@ class Scaling:
             return a
         width = self.act_high - self.act_low
         u = np.divide(2.0 * (a - self.act_low), width, out=np.ones_like(a), where=width > 0) - 1.0
-        return np.clip(u, -1.0, 1.0)
+        return np.clip(u, -1.0, 1.0) / self.gain
 
     def action_space(self, space: spaces.Box) -> spaces.Box:
         if self.act_low is None:

@@ -420,7 +420,7 @@ class Session:
         state = self.search
         self._tell(f"policy search: {settings.iterations:,} iterations of {settings.population} candidates on "
                    f"{settings.batch} new states each ({settings.objective}, perturbations of "
-                   f"{settings.sigma * state.scale:.2g}), from the best model (validation score "
+                   f"{settings.sigma * state.scale:.2g}, actions with gain {state.gain:g}), from the best model (validation score "
                    f"{self.best['score']:.4f}); at iteration {state.iteration:,}")
         limit = self.cfg.time_limit
 
@@ -439,11 +439,13 @@ class Session:
         kept = state.kept()
         if kept is not None:
             self.best = {**self.best, "score": kept["score"], "rates": kept["rates"], "return": kept["return"],
-                         "seconds": round(self.seconds, 3), "search_iteration": state.best_iteration}
+                         "seconds": round(self.seconds, 3), "search_iteration": state.best_iteration,
+                         "action_gain": state.gain}
             family.install(best, state.best_theta)
             self.run.save_model(lambda path: best.save(str(path)), best=self.best, policy_search=summary)
+            gain = f", its actions with gain {state.gain:g}" if state.gain != 1.0 else ""
             self._tell(f"policy search: kept iteration {state.best_iteration:,} of {state.iteration:,} (validation "
-                       f"score {summary['score_before']:.4f} -> {state.best_score:.4f}) in {state.seconds:.0f} s")
+                       f"score {summary['score_before']:.4f} -> {state.best_score:.4f}) in {state.seconds:.0f} s{gain}")
         else:
             self.run.update_manifest(policy_search=summary)
             self._tell(f"policy search: {state.iteration:,} iterations in {state.seconds:.0f} s, none beat the "
