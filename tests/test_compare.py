@@ -253,6 +253,8 @@ def test_what_was_run_says_what_each_run_did_beyond_its_learner():
                  "policy_search": {"iterations": 40, "kept_iteration": None}}
     assert run_phases(none_kept) == ("planner's paths of 28 states from the start; "
                                      "search: 40 iterations, the learner's model kept")
+    gained = {"config": {}, "policy_search": {"iterations": 1000, "kept_iteration": 75, "action_gain": 1.1}}
+    assert run_phases(gained) == "search: iteration 75 of 1,000 kept, actions with gain 1.1"
 
 
 def test_a_summary_evaluated_on_more_states_serves_a_report_on_their_first():

@@ -180,6 +180,8 @@ def train_command(args: argparse.Namespace, out: Optional[TextIO] = None, err: O
     out.write(f"trained {result.steps:,} steps in {result.seconds:.1f} s: {shown(result.run_dir)}\n")
     if best:
         searched = f", policy search iteration {best['search_iteration']:,}" if "search_iteration" in best else ""
+        if best.get("action_gain", 1.0) != 1.0:
+            searched += f", actions with gain {best['action_gain']:g}"
         out.write(f"best validation (step {best['steps']:,}{searched}): {validation_text(best, None)}\n")
     if result.never_succeeded:
         out.write(f"no validation succeeded ({len(result.curves)} on {result.config.validation_episodes:,} states, 0% at "

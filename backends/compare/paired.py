@@ -323,7 +323,9 @@ def run_phases(manifest: dict) -> str:
     if isinstance(search, dict):
         kept = search.get("kept_iteration")
         its = int(search.get("iterations") or 0)
-        parts.append(f"search: iteration {int(kept):,} of {its:,} kept" if kept is not None
+        gain = search.get("action_gain", 1.0)
+        gained = f", actions with gain {gain:g}" if isinstance(gain, (int, float)) and gain != 1.0 else ""
+        parts.append(f"search: iteration {int(kept):,} of {its:,} kept{gained}" if kept is not None
                      else f"search: {its:,} iterations, the learner's model kept")
     return "; ".join(parts) or "the learner alone"
 
