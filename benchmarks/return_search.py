@@ -93,7 +93,7 @@ def search(args, loaded) -> int:
 
     search.validate(state)
     show(state)
-    state = search.finish(search.run(state, lambda: False, show))
+    state = search.finish(search.run(state, lambda: False, show), state.best_score)
     show(state)
     evaluator = Evaluator(prog, cfg.task, task_states(prog.system, model, 1000, seed=EVAL_SEED), reward=cfg.reward)
 

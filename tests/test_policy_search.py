@@ -301,3 +301,23 @@ def test_the_gain_chosen_is_the_one_under_which_the_actor_arrives_soonest():
     search.family.gain = 1.0
     assert search.validate(state)["score"] == row["score"]  # validate sets the state's gain itself
     assert search.iterate(state).gain == 2.0  # and every iteration keeps it
+
+
+def test_the_gain_is_chosen_again_for_the_parameters_kept():
+    from asap_dsl.backends.rl.policy_search import SearchSettings
+
+    search, _ = _search(SearchSettings(population=32, batch=64, action_gains=[1.0, 2.0], gain_for_kept=True))
+    push = _constant_actor(search.family, 0.5)
+    search.family.theta0 = _constant_actor(search.family, 0.0)  # the learner's actor: no gain helps it
+    state = search.start(0.0)
+    assert state.gain == 1.0
+    # as if the search had kept the push at iteration 25 (and nothing since beat it)
+    state.best_theta, state.best_iteration, state.best_score = push, 25, 10.0
+    done = search.finish(state, to_beat=0.0)
+    assert done.kept_gain == 2.0 and done.deployed_gain == 2.0 and done.kept()["gain"] == 2.0
+    assert done.summary(0.0)["action_gain"] == 2.0 and done.summary(0.0)["search_gain"] == 1.0
+    assert done.kept()["score"] == search._judge(push, 2.0)["score"]  # the record is what the model does
+    again = search.start(0.0)  # a gain that does not beat the learner's validation is not taken
+    again.best_theta, again.best_iteration, again.best_score = push, 25, 10.0
+    refused = search.finish(again, to_beat=1.0)
+    assert refused.deployed_gain == 1.0 and refused.kept_row is None

@@ -95,8 +95,10 @@ class SearchSettings:
     time_share: float = 0.25
     seconds: Optional[float] = None
     # The gains the policy's action may act with (:class:`~.sb3.Scaling`; None: 1 alone), each
-    # at least 1, as many as divide the population; chosen once at the start on fresh states.
+    # at least 1, as many as divide the population; chosen at the start on fresh states for the
+    # iterations and, with ``gain_for_kept``, again for the parameters kept at the end.
     action_gains: Optional[tuple] = None
+    gain_for_kept: bool = False
 
     def __post_init__(self) -> None:
         whole = all(isinstance(v, int) and not isinstance(v, bool) and v >= 1
@@ -126,6 +128,8 @@ class SearchSettings:
                 raise ValueError("the policy search's action_gains take numbers of at least 1, as many as divide "
                                  "its population, or none")
             object.__setattr__(self, "action_gains", tuple(sorted(float(g) for g in gains)))
+        if not isinstance(self.gain_for_kept, bool):
+            raise ValueError("the policy search's gain_for_kept is true or false")
         if self.objective not in OBJECTIVES:
             raise ValueError(f"the policy search's objective is one of {', '.join(OBJECTIVES)}; got {self.objective!r}")
 
@@ -160,15 +164,25 @@ class SearchState:
     validations: list = field(default_factory=list)  # {"iteration", "score", "rates"} per validation
     scale: float = 1.0         # the factor on sigma and the learning rate (:func:`smoothing_scale`)
     gain: float = 1.0          # the action gain the candidates act with (:meth:`PolicySearch.choose_gain`)
+    kept_gain: Optional[float] = None  # the gain chosen again for the kept parameters (None: not chosen again)
+    kept_row: Optional[dict] = None    # their validation with it
 
     def summary(self, score_before: float) -> dict:
         """What the run's manifest records of the search (``policy_search``)."""
         return {"iterations": self.iteration, "seconds": round(self.seconds, 3), "kept_iteration": self.best_iteration,
                 "score_before": float(score_before), "score": round(self.best_score, 6), "scale": self.scale,
-                "action_gain": self.gain, "validations": self.validations}
+                "action_gain": self.deployed_gain, "search_gain": self.gain, "validations": self.validations}
+
+    @property
+    def deployed_gain(self) -> float:
+        """The gain the kept parameters act with: chosen again for them, else the iterations'."""
+        return self.gain if self.kept_gain is None else self.kept_gain
 
     def kept(self) -> Optional[dict]:
-        """The validation row of the iteration kept (None: the learner's model stays)."""
+        """The validation row of the model kept (None: the learner's model stays): the iteration's,
+        or its validation with the gain chosen again for it."""
+        if self.kept_row is not None:
+            return self.kept_row
         return next((r for r in self.validations if r["iteration"] == self.best_iteration), None)
 
 
@@ -398,14 +412,8 @@ class PolicySearch:
     def validate(self, state: SearchState) -> dict:
         """The current parameters on the validation states; the best kept in ``state`` if they
         beat it (strictly: a tie keeps what came first, the learner's model). Returns the row."""
-        t0 = time.perf_counter()
-        self.family.thetas = state.theta[None]
-        self.family.gain = state.gain
-        res = self.validator.run(self.family)
-        rates = {T: res.rate(T) for T in self.tolerances}
-        score = float(self.score(rates))
-        row = {"iteration": state.iteration, "score": round(score, 6), "rates": rates,
-               "return": round(float(np.mean(res.returns)), 6), "seconds": round(time.perf_counter() - t0, 3)}
+        row = {"iteration": state.iteration, **self._judge(state.theta, state.gain)}
+        score = float(self.score(row["rates"]))  # unrounded, as the learner's best was
         if score > state.best_score:
             state.best_theta, state.best_score, state.best_iteration = state.theta.copy(), score, state.iteration
             row["best"] = 1
@@ -428,8 +436,27 @@ class PolicySearch:
             after(state)
         return state
 
-    def finish(self, state: SearchState) -> SearchState:
-        """The last parameters validated, as the learner's are at its end."""
+    def finish(self, state: SearchState, to_beat: float) -> SearchState:
+        """The last parameters validated, as the learner's are at its end; with ``gain_for_kept``,
+        the gain chosen again for the parameters kept (the search moved the actor the first choice
+        was made for), taken if their validation with it still beats ``to_beat`` (the learner's)."""
         if not state.validations or state.validations[-1]["iteration"] != state.iteration:
             self.validate(state)
+        if not self.settings.gain_for_kept or state.best_iteration is None or state.kept_gain is not None:
+            return state
+        gain = self.choose_gain(state.best_theta)
+        state.kept_gain = state.gain
+        if gain != state.gain:
+            row = self._judge(state.best_theta, gain)
+            if float(self.score(row["rates"])) > to_beat:
+                state.kept_gain, state.kept_row = gain, {**row, "iteration": state.best_iteration, "gain": gain}
         return state
+
+    def _judge(self, theta: np.ndarray, gain: float) -> dict:
+        """``theta`` acting with ``gain`` on the validation states: a validation row."""
+        t0 = time.perf_counter()
+        self.family.thetas, self.family.gain = theta[None], gain
+        res = self.validator.run(self.family)
+        rates = {T: res.rate(T) for T in self.tolerances}
+        return {"score": round(float(self.score(rates)), 6), "rates": rates,
+                "return": round(float(np.mean(res.returns)), 6), "seconds": round(time.perf_counter() - t0, 3)}

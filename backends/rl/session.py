@@ -434,16 +434,16 @@ class Session:
         if self.stop.signal is not None:
             self.checkpoint(model)
             return "interrupted"
-        self.search = state = search.finish(state)
+        self.search = state = search.finish(state, float(self.best["score"]))
         summary = json_safe(state.summary(self.best["score"]))
         kept = state.kept()
         if kept is not None:
             self.best = {**self.best, "score": kept["score"], "rates": kept["rates"], "return": kept["return"],
                          "seconds": round(self.seconds, 3), "search_iteration": state.best_iteration,
-                         "action_gain": state.gain}
+                         "action_gain": state.deployed_gain}
             family.install(best, state.best_theta)
             self.run.save_model(lambda path: best.save(str(path)), best=self.best, policy_search=summary)
-            gain = f", its actions with gain {state.gain:g}" if state.gain != 1.0 else ""
+            gain = f", its actions with gain {state.deployed_gain:g}" if state.deployed_gain != 1.0 else ""
             self._tell(f"policy search: kept iteration {state.best_iteration:,} of {state.iteration:,} (validation "
                        f"score {summary['score_before']:.4f} -> {state.best_score:.4f}) in {state.seconds:.0f} s{gain}")
         else:
