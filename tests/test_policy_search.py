@@ -317,6 +317,7 @@ def test_the_gain_is_chosen_again_for_the_parameters_kept():
     assert done.kept_gain == 2.0 and done.deployed_gain == 2.0 and done.kept()["gain"] == 2.0
     assert done.summary(0.0)["action_gain"] == 2.0 and done.summary(0.0)["search_gain"] == 1.0
     assert done.kept()["score"] == search._judge(push, 2.0)["score"]  # the record is what the model does
+    assert done.summary(0.0)["score"] == done.kept()["score"]
     again = search.start(0.0)  # a gain that does not beat the learner's validation is not taken
     again.best_theta, again.best_iteration, again.best_score = push, 25, 10.0
     refused = search.finish(again, to_beat=1.0)

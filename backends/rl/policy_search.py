@@ -170,8 +170,13 @@ class SearchState:
     def summary(self, score_before: float) -> dict:
         """What the run's manifest records of the search (``policy_search``)."""
         return {"iterations": self.iteration, "seconds": round(self.seconds, 3), "kept_iteration": self.best_iteration,
-                "score_before": float(score_before), "score": round(self.best_score, 6), "scale": self.scale,
+                "score_before": float(score_before), "score": self.kept_score, "scale": self.scale,
                 "action_gain": self.deployed_gain, "search_gain": self.gain, "validations": self.validations}
+
+    @property
+    def kept_score(self) -> float:
+        """The validation score of the model kept (with the gain chosen again for it, if taken)."""
+        return self.kept_row["score"] if self.kept_row is not None else round(self.best_score, 6)
 
     @property
     def deployed_gain(self) -> float:

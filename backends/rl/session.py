@@ -445,7 +445,7 @@ class Session:
             self.run.save_model(lambda path: best.save(str(path)), best=self.best, policy_search=summary)
             gain = f", its actions with gain {state.deployed_gain:g}" if state.deployed_gain != 1.0 else ""
             self._tell(f"policy search: kept iteration {state.best_iteration:,} of {state.iteration:,} (validation "
-                       f"score {summary['score_before']:.4f} -> {state.best_score:.4f}) in {state.seconds:.0f} s{gain}")
+                       f"score {summary['score_before']:.4f} -> {state.kept_score:.4f}) in {state.seconds:.0f} s{gain}")
         else:
             self.run.update_manifest(policy_search=summary)
             self._tell(f"policy search: {state.iteration:,} iterations in {state.seconds:.0f} s, none beat the "
