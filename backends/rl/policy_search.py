@@ -20,8 +20,9 @@ Before the first iteration the search also chooses the gain its policy acts with
 (``action_gains``): the actor's action multiplied before the clip onto the bounds, so that actions
 near a bound saturate there (:class:`~.sb3.Scaling`). SAC's squashed Gaussian reaches its bounds
 only at infinity, and a minimum-time path rides them; each gain is judged with the unperturbed actor
-on the same fresh states, the best kept (the smallest of equals), and the iterations and the model
-kept act with it.
+on the same fresh states, the best kept (the smallest of equals), and the iterations act with it.
+With ``gain_for_kept`` the gain is chosen again for the parameters kept at the end
+(:meth:`PolicySearch.finish`).
 
 Each iteration is a pure function of :class:`SearchState` (parameters, Adam's moments, the random
 generator's state): a checkpoint holds it and a resumed run continues exactly.
@@ -343,15 +344,12 @@ class PolicySearch:
             return float(gains[0])
         K, B, G = self.settings.population, self.settings.batch, len(gains)
         per = K * B // G
-        tolerances = self._tolerances()
-        within = np.zeros((G, len(tolerances)))
         self.family.thetas = np.repeat(theta[None], G, axis=0)
         self.family.gain = np.repeat(np.asarray(gains, dtype=np.float64), per)[:, None]
-        for b in range(GAIN_BATCHES):
-            x0 = task_states(self.prog.system, self.model, per, seed=SEARCH_SEEDS - 1_000 - 10 * self.seed - b)
-            _, arrival, _ = rollout_batch(self.trainer, self.family, np.tile(x0, (G, 1)), self.gamma, self.failure_reward)
-            within += np.stack([(arrival <= T).reshape(G, -1).mean(axis=1) for T in tolerances], axis=1)
-        score = [self.score(dict(zip(tolerances, rates / GAIN_BATCHES))) for rates in within]
+        within = sum(self._block_rates(task_states(self.prog.system, self.model, per,
+                                                   seed=SEARCH_SEEDS - 1_000 - 10 * self.seed - b), G)
+                     for b in range(GAIN_BATCHES))
+        score = self._block_scores(within / GAIN_BATCHES)
         self.family.gain = 1.0
         return float(gains[int(np.argmax(score))])  # argmax: the first, the smallest gain, among equals
 
@@ -367,12 +365,19 @@ class PolicySearch:
         eps = np.random.default_rng([SEARCH_SEEDS - 1, self.seed]).standard_normal((blocks, len(theta)))
         eps[0] = 0.0
         self.family.thetas = theta[None] + sigma * eps
+        score = self._block_scores(self._block_rates(x0, blocks))
+        return float(score[0] - score[1:].mean())
+
+    def _block_rates(self, x0: np.ndarray, blocks: int) -> np.ndarray:
+        """``[blocks, tolerances]``: the rate within each tolerance of each block of the family's
+        rows, every block started on the states ``x0``."""
         _, arrival, _ = rollout_batch(self.trainer, self.family, np.tile(x0, (blocks, 1)), self.gamma,
                                       self.failure_reward)
-        tolerances = self._tolerances()
-        within = np.stack([(arrival <= T).reshape(blocks, -1).mean(axis=1) for T in tolerances], axis=1)
-        score = np.array([self.score(dict(zip(tolerances, rates))) for rates in within])  # as validation ranks
-        return float(score[0] - score[1:].mean())
+        return np.stack([(arrival <= T).reshape(blocks, -1).mean(axis=1) for T in self._tolerances()], axis=1)
+
+    def _block_scores(self, rates: np.ndarray) -> np.ndarray:
+        """Each row of :meth:`_block_rates` ranked as validation ranks its rates."""
+        return np.array([self.score(dict(zip(self._tolerances(), row))) for row in rates])
 
     def fitness(self, returns: np.ndarray, arrival: np.ndarray, crossing: np.ndarray) -> np.ndarray:
         """Each candidate's worth (higher is better) from its rows' returns, arrival steps and
