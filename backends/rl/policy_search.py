@@ -271,7 +271,16 @@ class ActorFamily:
                                      else apply(self._unravel(th), o)))
         self.scaling = scaling
         self.thetas = self.theta0[None]
-        self.gain = scaling.gain  # a float, or per row ``[rows, 1]`` (:meth:`PolicySearch.choose_gain`)
+
+    @property
+    def gain(self):
+        """The action gain the rows act with: a float, or per row ``[rows, 1]``
+        (:meth:`PolicySearch.choose_gain`); held by the scaling, set once per rollout, not per step."""
+        return self.scaling.gain
+
+    @gain.setter
+    def gain(self, value) -> None:
+        self.scaling = replace(self.scaling, gain=value)
 
     def reset(self, states: np.ndarray) -> None:
         pass
@@ -282,7 +291,7 @@ class ActorFamily:
         k = len(self.thetas)
         o = self.scaling.observation(obs).astype(np.float32).reshape(k, len(obs) // k, -1)
         u = np.asarray(self._act(jnp.asarray(self.thetas, dtype=jnp.float32), jnp.asarray(o)))
-        return replace(self.scaling, gain=self.gain).action(u.reshape(len(obs), -1))
+        return self.scaling.action(u.reshape(len(obs), -1))
 
     def install(self, model, theta: np.ndarray) -> None:
         """``theta`` becomes ``model``'s actor's parameters."""
